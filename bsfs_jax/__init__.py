@@ -1,0 +1,38 @@
+"""bsfs: a differentiable simulator of ball screw feed systems under thermal deformation.
+
+Model: Yang et al., "Nonlinear dynamic characteristics of ball screw feed system under
+thermal deformation", Nonlinear Dynamics (2022), as fixed by physics.md. All quantities
+are SI inside the package; the library never changes `jax.config` (enable 64-bit floats
+at your entry point: `jax.config.update("jax_enable_x64", True)`).
+"""
+
+import importlib.metadata
+
+from .model import HarmonicForcing as HarmonicForcing
+from .model import Sinusoid as Sinusoid
+from .model import System as System
+from .model import build_system as build_system
+from .model import joint_forces as joint_forces
+from .model import mechanical_energy as mechanical_energy
+from .model import vector_field as vector_field
+from .params import BallScrewParams as BallScrewParams
+from .params import ParameterError as ParameterError
+from .params import list_presets as list_presets
+from .params import load_params as load_params
+from .params import params_to_toml as params_to_toml
+from .params import preset as preset
+from .params import save_params as save_params
+from .solvers import Modes as Modes
+from .solvers import SolverError as SolverError
+from .solvers import SolverSettings as SolverSettings
+from .solvers import Trajectory as Trajectory
+from .solvers import equilibrium as equilibrium
+from .solvers import integrate as integrate
+from .solvers import linear_frf as linear_frf
+from .solvers import modes as modes
+from .solvers import simulate as simulate
+
+try:
+    __version__ = importlib.metadata.version("bsfs")
+except importlib.metadata.PackageNotFoundError:  # running from a source tree
+    __version__ = "0.0.0+local"

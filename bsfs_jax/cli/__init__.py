@@ -1,0 +1,58 @@
+"""The `bsfs` command line. Each command lives in its own module with `register(sub)`.
+
+Only this layer touches `jax.config` (64-bit floats, the persistent compilation cache),
+parses arguments and writes files.
+"""
+
+import argparse
+import importlib
+import sys
+
+# Command modules, in the order they appear in `bsfs --help`. Each defines
+# `register(subparsers)` which adds its sub-command(s) with `set_defaults(func=...)`.
+_COMMAND_MODULES = [
+    "bsfs_jax.cli._simulate_cmd",
+    "bsfs_jax.cli._analysis_cmd",
+    "bsfs_jax.cli._identify_cmd",
+    "bsfs_jax.cli._design_cmd",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="bsfs",
+        description="Simulate, analyse and identify the nonlinear vibration of a ball screw "
+        "feed system under thermal deformation (Yang et al. 2022 model, JAX).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # command group not built yet
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    from ._common import CLIError, setup_jax
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    setup_jax()
+    from ..params import ParameterError
+    from ..solvers import SolverError
+
+    try:
+        return int(args.func(args) or 0)
+    except (CLIError, ParameterError, SolverError, FileExistsError, FileNotFoundError) as exc:
+        print(f"bsfs {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"bsfs {args.command}: interrupted", file=sys.stderr)
+        return 130

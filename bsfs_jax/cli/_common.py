@@ -1,0 +1,110 @@
+"""Helpers shared by the CLI commands: JAX set-up, parameter loading, atomic outputs."""
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+class CLIError(RuntimeError):
+    """A user-facing error: printed as one line, exit status 1."""
+
+
+def setup_jax() -> None:
+    """64-bit floats and the persistent compilation cache (so repeated runs skip compiles)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    cache = os.environ.get("BSFS_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "bsfs", "jax")
+    try:
+        os.makedirs(cache, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    except OSError:
+        pass  # a read-only home: run without the cache
+
+
+def add_params_args(parser) -> None:
+    """--params FILE | --preset NAME (mutually exclusive), plus --set section.key=value."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--params", metavar="FILE", help="TOML parameter file")
+    group.add_argument("--preset", metavar="NAME", help="bundled preset (see `bsfs params --list`)")
+    parser.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
+                        help="override one parameter, e.g. --set nut.preload_n=2000 (repeatable)")
+
+
+def load_params_from_args(args):
+    from ..params import load_params, preset
+
+    params = load_params(args.params) if getattr(args, "params", None) else preset(
+        getattr(args, "preset", None) or "default")
+    for item in getattr(args, "set", []) or []:
+        if "=" not in item:
+            raise CLIError(f"--set expects SECTION.KEY=VALUE, got '{item}'")
+        name, value = item.split("=", 1)
+        value = value.strip()
+        if value.lower() in ("true", "false"):
+            params = params.replace(name.strip(), value.lower() == "true")
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            raise CLIError(f"--set {name}: '{value}' is not a number") from None
+        params = params.replace(name.strip(), number)
+    from ..params import validate
+
+    return validate(params, source="--set")
+
+
+def out_dir(path) -> Path:
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise CLIError(f"--out '{path}' exists and is not a folder")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "shape"):
+        arr = np.asarray(obj)
+        return arr.item() if arr.ndim == 0 else _jsonable(arr.tolist())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def write_json(path, data) -> None:
+    """Write JSON atomically (temp file in the same folder, then rename)."""
+    write_bytes_atomic(path, (json.dumps(_jsonable(data), indent=2) + "\n").encode())
+
+
+def write_bytes_atomic(path, payload: bytes) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(payload)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_figure(fig, path) -> None:
+    """Save a matplotlib figure atomically (PNG, 130 dpi)."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=130,
+                bbox_inches="tight")
+    write_bytes_atomic(path, buf.getvalue())

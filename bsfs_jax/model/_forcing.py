@@ -1,0 +1,41 @@
+"""Excitation forces acting on the nut mass, as small Modules evaluated at time t."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+class Sinusoid(eqx.Module):
+    """P sin(2 pi f t + phase) [N] (the paper's excitation, Eq. 31)."""
+
+    amplitude: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    frequency: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    phase: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float), default=0.0)
+
+    @property
+    def period(self):
+        return 1.0 / self.frequency
+
+    def __call__(self, t):
+        return self.amplitude * jnp.sin(2.0 * jnp.pi * self.frequency * t + self.phase)
+
+
+class HarmonicForcing(eqx.Module):
+    """Offset + sum_k [a_k cos(2 pi k f t) + b_k sin(2 pi k f t)] [N], k = 1..H.
+
+    For exciter records: the measured force's fitted harmonics drive the model.
+    """
+
+    frequency: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    cos_coeffs: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    sin_coeffs: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    offset: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float), default=0.0)
+
+    @property
+    def period(self):
+        return 1.0 / self.frequency
+
+    def __call__(self, t):
+        k = jnp.arange(1, self.cos_coeffs.shape[-1] + 1)
+        arg = 2.0 * jnp.pi * self.frequency * k * t
+        return self.offset + jnp.sum(self.cos_coeffs * jnp.cos(arg) + self.sin_coeffs * jnp.sin(arg))

@@ -1,0 +1,95 @@
+"""Static equilibrium with thermal offsets, linearised modes and the linear FRF."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from ..model import restoring_forces
+from ._simulate import as_system
+
+_X_SCALE = 1e-6  # solve in micrometres: well scaled for Newton
+_F_SCALE = 1e3  # and kilonewtons
+
+
+def equilibrium(model, static_force_n=0.0):
+    """Static displacements (x_b, x_s, x_n) [m] under a constant axial force on the nut.
+
+    Solves the restoring forces of Eq. 31 = (0, 0, P0) by Newton (optimistix), with the
+    thermal offsets in place. With P0 = 0 and symmetric pairs this is x = 0.
+    """
+    system = as_system(model)
+
+    def residual(z, p0):
+        f = restoring_forces(system, z * _X_SCALE, jnp.zeros(3))
+        return (f - jnp.stack([0.0, 0.0, p0])) / _F_SCALE
+
+    sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), jnp.zeros(3),
+                         args=jnp.asarray(static_force_n, dtype=float), throw=False,
+                         max_steps=100)
+    return sol.value * _X_SCALE
+
+
+class Modes(eqx.Module):
+    """Linearised modal data about the static equilibrium.
+
+    - `frequencies_hz` (3,), ascending undamped natural frequencies;
+    - `shapes` (3, 3): column i is mode i, mass-normalised (phi^T M phi = 1);
+    - `damping_ratios` (3,): modal approximation phi^T C phi / (2 omega);
+    - `stiffness` (3, 3) [N/m], `damping` (3, 3) [N s/m], `mass` (3,) [kg];
+    - `equilibrium` (3,) [m].
+    """
+
+    frequencies_hz: jax.Array
+    shapes: jax.Array
+    damping_ratios: jax.Array
+    stiffness: jax.Array
+    damping: jax.Array
+    mass: jax.Array
+    equilibrium: jax.Array
+
+    @property
+    def static_stiffness(self):
+        """Axial stiffness at the nut, P / x_n [N/m] (the drive's static stiffness)."""
+        return 1.0 / jnp.linalg.inv(self.stiffness)[2, 2]
+
+
+def linearise(model, static_force_n=0.0):
+    """(K, C, M, x_eq): tangent stiffness and damping matrices about the equilibrium."""
+    system = as_system(model)
+    x_eq = equilibrium(system, static_force_n)
+    k = jax.jacfwd(lambda x: restoring_forces(system, x, jnp.zeros(3)))(x_eq)
+    c = jax.jacfwd(lambda v: restoring_forces(system, x_eq, v))(jnp.zeros(3))
+    return k, c, system.mass, x_eq
+
+
+def modes(model, static_force_n=0.0) -> Modes:
+    """Natural frequencies and mode shapes linearised about the static equilibrium."""
+    k, c, m, x_eq = linearise(model, static_force_n)
+    inv_sqrt_m = 1.0 / jnp.sqrt(m)
+    k_sym = k * inv_sqrt_m[:, None] * inv_sqrt_m[None, :]
+    k_sym = 0.5 * (k_sym + k_sym.T)
+    lam, vecs = jnp.linalg.eigh(k_sym)
+    omega = jnp.sqrt(jnp.abs(lam))
+    shapes = vecs * inv_sqrt_m[:, None]
+    # Fix the sign: largest component of each shape positive (deterministic output).
+    idx = jnp.argmax(jnp.abs(shapes), axis=0)
+    shapes = shapes * jnp.sign(shapes[idx, jnp.arange(3)])[None, :]
+    zeta = jnp.einsum("ji,jk,ki->i", shapes, c, shapes) / (2.0 * omega)
+    return Modes(omega / (2 * jnp.pi), shapes, zeta, k, c, m, x_eq)
+
+
+def linear_frf(model, frequencies_hz, static_force_n=0.0):
+    """Complex receptance x_j / P [m/N] of the linearised system, shape (len(f), 3).
+
+    H(w) = (K - w^2 M + i w C)^(-1) e_nut; the small-force limit of Eq. 31.
+    """
+    k, c, m, _ = linearise(model, static_force_n)
+    omega = 2 * jnp.pi * jnp.atleast_1d(jnp.asarray(frequencies_hz, dtype=float))
+    rhs = jnp.array([0.0, 0.0, 1.0], dtype=complex)
+
+    def one(w):
+        dyn = k - w**2 * jnp.diag(m) + 1j * w * c
+        return jnp.linalg.solve(dyn.astype(complex), rhs)
+
+    return jax.vmap(one)(omega)

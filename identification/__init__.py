@@ -1,0 +1,1 @@
+"""Parameter identification from exciter records (see issue 4)."""
