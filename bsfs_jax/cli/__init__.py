@@ -13,6 +13,7 @@ import sys
 _COMMAND_MODULES = [
     "bsfs_jax.cli._simulate_cmd",
     "bsfs_jax.cli._analysis_cmd",
+    "bsfs_jax.cli._continue_cmd",
     "bsfs_jax.cli._identify_cmd",
     "bsfs_jax.cli._design_cmd",
 ]
@@ -53,6 +54,8 @@ def main(argv=None) -> int:
     except (CLIError, ParameterError, SolverError, FileExistsError, FileNotFoundError) as exc:
         print(f"bsfs {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # e.g. `bsfs params | head`
+        return 0
     except KeyboardInterrupt:
         print(f"bsfs {args.command}: interrupted", file=sys.stderr)
         return 130

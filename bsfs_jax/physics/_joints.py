@@ -1,7 +1,12 @@
 """Restoring force of a preloaded pair of Hertz ball rows (double nut or bearing pair).
 
 Paper Eqs. (5)-(16) (screw-nut joint) and (17)-(28) (bearing joint), as fixed by the
-contract of physics.md section 1 (which corrects Eq. 20's sign and the thermal sign).
+contract of physics.md section 1 (which corrects Eq. 20's sign and the thermal sign):
+
+    a_s = A sin(beta) + s u / cos(lambda),  b = A cos(beta),  A_s = sqrt(a_s^2 + b^2)
+    delta_s = A_s - A0 - D                  (no contact when <= 0)
+    F_side,s = Z K^(-3/2) max(delta_s, 0)^(3/2) (a_s / A_s) cos(lambda)
+    F(u) = F_side,+1 - F_side,-1
 """
 
 import equinox as eqx
@@ -11,16 +16,18 @@ from ._safe import pos_pow
 
 
 class PreloadedPair(eqx.Module):
-    """Geometry of one preloaded pair, all SI, all differentiable arrays.
+    """One preloaded pair, SI units, all differentiable arrays. Build with `preloaded_pair`.
 
-    Built from parameters by `preloaded_pair(...)`; fields:
-    - `balls`: Z (nut, per half) or m (bearing, per row) [-], real-valued.
-    - `hertz_k`: K [m/N^(2/3)].
-    - `a0`: unloaded curvature-centre distance A0 = (f_1 + f_2 - 1) d [m].
-    - `a`: preloaded distance A = A0 + K Q0^(2/3) [m].
-    - `contact_angle`: free contact angle [rad].
-    - `cos_helix`: cos(lambda) (1 for the bearing).
-    - `offset`: signed thermal offset D [m]; positive reduces the contact deformation.
+    Physical fields (reported, and used by the potential):
+    - `balls`: Z (nut, per half) or m (bearing, per row), real-valued;
+    - `hertz_k`: K [m/N^(2/3)]; `a0`: A0 = (f_1 + f_2 - 1) d [m];
+    - `a`: preloaded centre distance A = A0 + K Q0^(2/3) [m];
+    - `contact_angle` [rad]; `cos_helix`: cos(lambda) (1 for the bearing);
+    - `offset`: signed thermal offset D [m] (positive reduces the contact deformation).
+
+    Derived once here so the force law (evaluated at every solver stage) stays cheap:
+    - `coeff` = Z K^(-3/2) cos(lambda) [N/m^(3/2)]; `axial` = A sin(beta) [m];
+    - `radial_sq` = (A cos(beta))^2 [m^2]; `reach` = A0 + D [m].
     """
 
     balls: jnp.ndarray
@@ -30,6 +37,10 @@ class PreloadedPair(eqx.Module):
     contact_angle: jnp.ndarray
     cos_helix: jnp.ndarray
     offset: jnp.ndarray
+    coeff: jnp.ndarray
+    axial: jnp.ndarray
+    radial_sq: jnp.ndarray
+    reach: jnp.ndarray
 
 
 def preloaded_pair(balls, ball_diameter, conformity_1, conformity_2, contact_angle, preload,
@@ -39,19 +50,25 @@ def preloaded_pair(balls, ball_diameter, conformity_1, conformity_2, contact_ang
     Q0 = F_p / (Z sin(beta) cos(lambda)), delta0 = K Q0^(2/3), A = A0 + delta0.
     """
     f = lambda x: jnp.asarray(x, dtype=float)
+    balls, hertz_k, angle, cos_helix, offset = map(f, (balls, hertz_k, contact_angle,
+                                                      cos_helix, offset))
     a0 = (f(conformity_1) + f(conformity_2) - 1.0) * f(ball_diameter)
-    q0 = f(preload) / (f(balls) * jnp.sin(contact_angle) * cos_helix)
-    delta0 = f(hertz_k) * q0 ** (2.0 / 3.0)
-    return PreloadedPair(f(balls), f(hertz_k), a0, a0 + delta0, f(contact_angle),
-                         f(cos_helix), f(offset))
+    q0 = f(preload) / (balls * jnp.sin(angle) * cos_helix)
+    a = a0 + hertz_k * q0 ** (2.0 / 3.0)
+    return PreloadedPair(
+        balls, hertz_k, a0, a, angle, cos_helix, offset,
+        coeff=balls * hertz_k ** (-1.5) * cos_helix,
+        axial=a * jnp.sin(angle),
+        radial_sq=(a * jnp.cos(angle)) ** 2,
+        reach=a0 + offset,
+    )
 
 
 def _side_geometry(u, pair: PreloadedPair, side):
     """(a_s, A_s, delta_s) for side s = +1 (left) or -1 (right) at axial displacement u."""
-    a_s = pair.a * jnp.sin(pair.contact_angle) + side * u / pair.cos_helix
-    b = pair.a * jnp.cos(pair.contact_angle)
-    a_len = jnp.sqrt(a_s**2 + b**2)  # b > 0 for angles < 90 deg: no sqrt(0) here
-    return a_s, a_len, a_len - pair.a0 - pair.offset
+    a_s = pair.axial + side * u / pair.cos_helix
+    a_len = jnp.sqrt(a_s * a_s + pair.radial_sq)  # radial_sq > 0 below 90 deg: no sqrt(0)
+    return a_s, a_len, a_len - pair.reach
 
 
 def contact_deformations(u, pair: PreloadedPair):
@@ -70,11 +87,10 @@ def contact_angles(u, pair: PreloadedPair):
 
 def side_forces(u, pair: PreloadedPair):
     """Axial forces (F_+, F_-) [N] carried by each half; each >= 0 (Eqs. 7, 9 / 19, 21)."""
-    coeff = pair.balls * pair.hertz_k ** (-1.5) * pair.cos_helix
     out = []
     for side in (1.0, -1.0):
         a_s, a_len, delta = _side_geometry(u, pair, side)
-        out.append(coeff * pos_pow(delta, 1.5) * a_s / a_len)
+        out.append(pair.coeff * pos_pow(delta, 1.5) * a_s / a_len)
     return tuple(out)
 
 
@@ -91,5 +107,4 @@ def pair_potential(u, pair: PreloadedPair):
     U = (2/5) Z K^(-3/2) cos^2(lambda) [delta_+^(5/2) + delta_-^(5/2)] (zero-point irrelevant).
     """
     d_plus, d_minus = contact_deformations(u, pair)
-    coeff = 0.4 * pair.balls * pair.hertz_k ** (-1.5) * pair.cos_helix**2
-    return coeff * (pos_pow(d_plus, 2.5) + pos_pow(d_minus, 2.5))
+    return 0.4 * pair.coeff * pair.cos_helix * (pos_pow(d_plus, 2.5) + pos_pow(d_minus, 2.5))

@@ -12,4 +12,11 @@ def pos_pow(x, p):
     """
     x = jnp.asarray(x)
     pos = x > 0
-    return jnp.where(pos, jnp.where(pos, x, 1.0) ** p, 0.0)
+    safe = jnp.where(pos, x, 1.0)
+    if p == 1.5:  # the Hertz law: x sqrt(x) is much cheaper than a general power
+        value = safe * jnp.sqrt(safe)
+    elif p == 2.5:
+        value = safe * safe * jnp.sqrt(safe)
+    else:
+        value = safe**p
+    return jnp.where(pos, value, 0.0)

@@ -1,0 +1,174 @@
+"""Benchmark S1 (issue 2): `simulate` vs scipy solve_ivp (RK45), and the cold/warm CLI.
+
+S1: 200 periods at 500 Hz and 5000 N on the default preset, rtol 1e-8, atol 1e-12, both
+saving the same 64 points per period. JAX is timed after compilation (median of repeats);
+scipy runs the same model written in numpy (what a scipy user would write), once.
+S2: `bsfs simulate --frequency 500 --force 5000` as a fresh process: cold (empty
+compilation cache) and warm (cache filled by the previous run).
+
+Usage: python benchmarks/bench_simulate.py [--quick]
+"""
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import numpy as np
+from scipy.integrate import solve_ivp
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _machine import machine_info, machine_line  # noqa: E402
+
+import bsfs_jax as bsfs  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def numpy_rhs(system):
+    """Eq. 31 in plain numpy from the same coefficients (the peer implementation)."""
+    m = np.asarray(system.mass)
+    c_b, c_s, c_n = np.asarray(system.damping)
+    k_s = float(system.screw_stiffness)
+
+    def pair(p):
+        return dict(z=float(p.balls) * float(p.hertz_k) ** -1.5 * float(p.cos_helix),
+                    asin=float(p.a) * np.sin(float(p.contact_angle)),
+                    b=float(p.a) * np.cos(float(p.contact_angle)), a0=float(p.a0),
+                    d=float(p.offset), ch=float(p.cos_helix))
+
+    nut, brg = pair(system.nut), pair(system.bearing)
+
+    def force(u, p):
+        out = 0.0
+        for s in (1.0, -1.0):
+            a = p["asin"] + s * u / p["ch"]
+            length = np.sqrt(a * a + p["b"] ** 2)
+            delta = length - p["a0"] - p["d"]
+            if delta > 0:
+                out += s * p["z"] * delta**1.5 * a / length
+        return out
+
+    def rhs(t, y, amp, omega):
+        x_b, x_s, x_n, v_b, v_s, v_n = y
+        f_b = force(x_b, brg)
+        f_s = k_s * (x_s - x_b) + c_s * (v_s - v_b)
+        f_n = force(x_n - x_s, nut) + c_n * (v_n - v_s)
+        return [v_b, v_s, v_n, (-f_b - c_b * v_b + f_s) / m[0], (-f_s + f_n) / m[1],
+                (amp * np.sin(omega * t) - f_n) / m[2]]
+
+    return rhs
+
+
+def bench_s1(repeats: int, periods: int) -> dict:
+    params = bsfs.preset("default")
+    system = bsfs.build_system(params)
+    freq, force = 500.0, 5000.0
+    kw = dict(frequency_hz=freq, force_n=force, periods=periods, transient_periods=0,
+              samples_per_period=64, rtol=1e-8, atol=1e-12)
+    t0 = time.perf_counter()
+    traj = bsfs.simulate(system, **kw)
+    jax.block_until_ready(traj.t)
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        traj = bsfs.simulate(system, **kw)
+        jax.block_until_ready(traj.t)
+        times.append(time.perf_counter() - t0)
+    jax_s = statistics.median(times)
+    rhs = numpy_rhs(system)
+    t_eval = np.asarray(traj.t)
+    t0 = time.perf_counter()
+    sol = solve_ivp(rhs, (0.0, t_eval[-1]), np.zeros(6), method="RK45", t_eval=t_eval,
+                    rtol=1e-8, atol=1e-12, args=(force, 2 * np.pi * freq))
+    scipy_s = time.perf_counter() - t0
+    diff = np.max(np.abs(sol.y[2] - np.asarray(traj.displacement[:, 2])))
+    amp = float(traj.amplitude())
+    return {
+        "case": f"default preset, {freq:g} Hz, {force:g} N, {periods} periods, rtol 1e-8, "
+                "atol 1e-12, 64 samples/period",
+        "jax_first_call_s": first, "jax_median_s": jax_s, "jax_runs_s": times,
+        "jax_steps": int(traj.num_steps), "scipy_rk45_s": scipy_s, "scipy_nfev": int(sol.nfev),
+        "speedup": scipy_s / jax_s, "max_abs_diff_x_n_um": diff * 1e6,
+        "amplitude_um": amp * 1e6,
+    }
+
+
+def bench_s2(repeats: int) -> dict:
+    exe = shutil.which("bsfs") or str(Path(sys.executable).parent / "bsfs")
+    cmd = [exe, "simulate", "--frequency", "500", "--force", "5000"]
+    cold, warm = [], []
+    for _ in range(repeats):
+        cache = tempfile.mkdtemp(prefix="bsfs-cache-")
+        out = tempfile.mkdtemp(prefix="bsfs-out-")
+        env = {**os.environ, "BSFS_CACHE_DIR": cache}
+        for bucket in (cold, warm):
+            t0 = time.perf_counter()
+            subprocess.run(cmd + ["--out", out], env=env, check=True, capture_output=True)
+            bucket.append(time.perf_counter() - t0)
+        shutil.rmtree(cache, ignore_errors=True)
+        shutil.rmtree(out, ignore_errors=True)
+    return {"command": " ".join(["bsfs"] + cmd[1:]) + " --out DIR", "cold_runs_s": cold,
+            "warm_runs_s": warm, "cold_median_s": statistics.median(cold),
+            "warm_median_s": statistics.median(warm)}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    info = machine_info()
+    s1 = bench_s1(repeats=3 if args.quick else 7, periods=200)
+    s2 = bench_s2(repeats=1 if args.quick else 3)
+    result = {"machine": info, "S1": s1, "S2": s2}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "simulate.json").write_text(json.dumps(result, indent=2))
+    md = [
+        "## S1/S2: single simulation and the CLI (issue 2)",
+        "",
+        machine_line(info),
+        "",
+        f"S1: {s1['case']}.",
+        "",
+        "| implementation | time [s] | ratio |",
+        "|---|---|---|",
+        f"| bsfs `simulate` (diffrax Tsit5, jit, median of runs after compile) | "
+        f"{s1['jax_median_s']:.3f} | 1 |",
+        f"| scipy `solve_ivp` RK45, numpy right-hand side | {s1['scipy_rk45_s']:.2f} | "
+        f"{s1['speedup']:.0f}x slower |",
+        "",
+        f"First call (compile + run): {s1['jax_first_call_s']:.2f} s; {s1['jax_steps']} steps; "
+        f"scipy {s1['scipy_nfev']} RHS evaluations. Max |x_n difference| between the two: "
+        f"{s1['max_abs_diff_x_n_um']:.2e} um on an amplitude of {s1['amplitude_um']:.2f} um. "
+        f"Target: at least 50x: **{'met' if s1['speedup'] >= 50 else 'NOT met'}**.",
+        "",
+        f"S2: `{s2['command']}` as a fresh process (import, compile or cache load, 250 periods, "
+        "figure and files):",
+        "",
+        "| run | median [s] | runs [s] |",
+        "|---|---|---|",
+        f"| cold (empty compilation cache) | {s2['cold_median_s']:.2f} | "
+        + ", ".join(f"{x:.2f}" for x in s2["cold_runs_s"]) + " |",
+        f"| warm (persistent cache filled) | {s2['warm_median_s']:.2f} | "
+        + ", ".join(f"{x:.2f}" for x in s2["warm_runs_s"]) + " |",
+        "",
+        f"Targets: at most 15 s cold: **{'met' if s2['cold_median_s'] <= 15 else 'NOT met'}**; "
+        f"at most 5 s warm: **{'met' if s2['warm_median_s'] <= 5 else 'NOT met'}**.",
+        "",
+    ]
+    (RESULTS / "simulate.md").write_text("\n".join(md))
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()

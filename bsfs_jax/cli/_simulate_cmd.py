@@ -1,0 +1,219 @@
+"""`bsfs simulate`, `bsfs params` and `bsfs modes`."""
+
+import sys
+import time
+
+import numpy as np
+
+from ._common import CLIError, add_params_args, load_params_from_args, out_dir, save_figure, \
+    write_json
+
+
+def register(sub) -> None:
+    p = sub.add_parser("simulate", help="simulate the response to a harmonic force on the nut",
+                       description="Simulate Eq. 31 under P sin(2 pi f t) on the nut; write "
+                       "summary.json, timeseries.csv and response.png.")
+    p.add_argument("--frequency", type=float, required=True, metavar="HZ",
+                   help="excitation frequency [Hz]")
+    p.add_argument("--force", type=float, required=True, metavar="N", help="force amplitude [N]")
+    p.add_argument("--speed", type=float, metavar="RPM", help="screw speed [r/min] (thermal chain)")
+    p.add_argument("--no-thermal", action="store_true", help="switch thermal deformation off")
+    add_params_args(p)
+    p.add_argument("--periods", type=int, default=50, help="saved steady-state periods (50)")
+    p.add_argument("--transient", type=int, default=200, help="discarded periods (200)")
+    p.add_argument("--samples-per-period", type=int, default=64, help="output points per period")
+    p.add_argument("--rtol", type=float, default=1e-8)
+    p.add_argument("--atol", type=float, default=1e-12, help="absolute tolerance [SI]")
+    p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.set_defaults(func=run_simulate)
+
+    q = sub.add_parser("params", help="print a complete TOML parameter file")
+    add_params_args(q)
+    q.add_argument("--list", action="store_true", help="list the bundled presets")
+    q.set_defaults(func=run_params)
+
+    m = sub.add_parser("modes", help="natural frequencies and mode shapes about equilibrium")
+    add_params_args(m)
+    m.add_argument("--speed", type=float, metavar="RPM")
+    m.add_argument("--no-thermal", action="store_true")
+    m.add_argument("--static-force", type=float, default=0.0, metavar="N",
+                   help="constant axial force on the nut for the equilibrium [N]")
+    m.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    m.set_defaults(func=run_modes)
+
+
+def _apply_common(params, args):
+    if getattr(args, "speed", None) is not None:
+        params = params.replace("thermal.speed_rpm", args.speed)
+    if getattr(args, "no_thermal", False):
+        params = params.replace("thermal.enabled", False)
+    from ..params import validate
+
+    return validate(params, source="command line")
+
+
+def _report_fn():
+    """One jitted function for everything reported besides the trajectory (cached)."""
+    import equinox as eqx
+
+    from ..model import build_system
+    from ..solvers import modes
+
+    @eqx.filter_jit
+    def report(params, static_force):
+        system = build_system(params)
+        return system, modes(system, static_force)
+
+    return report
+
+
+def _thermal_dict(system):
+    th = system.thermal
+    temps = np.asarray(th.temperatures_c)
+    return {
+        "temperatures_c": {"bearing": temps[0], "screw": temps[1], "nut": temps[2]},
+        "temperature_rise_k": dict(zip(("bearing", "screw", "nut"),
+                                       np.asarray(th.temperature_rise_k).tolist())),
+        "heat_w": {"bearing": np.asarray(th.heat_w)[0], "nut": np.asarray(th.heat_w)[1]},
+        "nut_offset_um": float(th.nut_offset) * 1e6,
+        "bearing_offset_um": float(th.bearing_offset) * 1e6,
+        "screw_elongation_um": float(th.elongation) * 1e6,
+    }
+
+
+def run_simulate(args) -> int:
+    import bsfs_jax
+
+    from ..params import params_summary
+    from ..plotting._response import amplitude_spectrum, response_figure
+    from ..solvers import simulate
+
+    if not args.frequency > 0:
+        raise CLIError(f"--frequency must be positive, got {args.frequency}")
+    if not args.force >= 0:
+        raise CLIError(f"--force must be >= 0, got {args.force}")
+    if args.periods < 2 or args.transient < 0 or args.samples_per_period < 8:
+        raise CLIError("need --periods >= 2, --transient >= 0 and --samples-per-period >= 8")
+    params = _apply_common(load_params_from_args(args), args)
+    folder = out_dir(args.out)
+    started = time.perf_counter()
+    system, md = _report_fn()(params, 0.0)
+    print(f"natural frequencies: {', '.join(f'{f:.1f}' for f in np.asarray(md.frequencies_hz))} Hz")
+    print(f"simulating {args.transient} + {args.periods} periods at {args.frequency:g} Hz, "
+          f"{args.force:g} N ...", flush=True)
+    traj = simulate(system, frequency_hz=args.frequency, force_n=args.force,
+                    periods=args.periods, transient_periods=args.transient,
+                    samples_per_period=args.samples_per_period, rtol=args.rtol, atol=args.atol,
+                    max_steps=args.max_steps, progress=sys.stderr.isatty())
+    t = np.asarray(traj.t)
+    x = np.asarray(traj.displacement)
+    v = np.asarray(traj.velocity)
+    a = np.asarray(traj.acceleration)
+    jf = np.asarray(traj.joint_force)
+    amp = 0.5 * (x.max(axis=0) - x.min(axis=0))
+    strobe = x[:: traj.samples_per_period, 2]
+    spread = np.ptp(strobe) / max(amp[2], 1e-30)
+    freq, spec = amplitude_spectrum(t, x[:, 2])
+    top = np.argsort(spec)[::-1][:5]
+    summary = {
+        "bsfs_version": bsfs_jax.__version__,
+        "frequency_hz": args.frequency,
+        "force_n": args.force,
+        "speed_rpm": float(params.thermal.speed_rpm),
+        "thermal_enabled": bool(params.thermal.enabled),
+        "amplitude_um": amp[2] * 1e6,
+        "amplitudes_um": {"bearing": amp[0] * 1e6, "screw": amp[1] * 1e6, "nut": amp[2] * 1e6},
+        "peak_acceleration_m_s2": {"nut": float(np.abs(a[:, 2]).max())},
+        "peak_joint_force_n": dict(zip(("bearing", "screw", "nut"),
+                                       np.abs(jf).max(axis=0).tolist())),
+        "natural_frequencies_hz": np.asarray(md.frequencies_hz),
+        "modal_damping_ratios": np.asarray(md.damping_ratios),
+        "static_stiffness_n_per_um": float(md.static_stiffness) * 1e-6,
+        **_thermal_dict(system),
+        "poincare_spread": float(spread),
+        "dominant_spectral_lines_hz": [{"frequency_hz": float(freq[i]),
+                                        "amplitude_um": float(spec[i]) * 1e6} for i in top],
+        "settings": {"periods": args.periods, "transient_periods": args.transient,
+                     "samples_per_period": args.samples_per_period, "rtol": args.rtol,
+                     "atol": args.atol, "solver": "tsit5", "num_steps": int(traj.num_steps)},
+        "parameters": params_summary(params),
+        "units": {"amplitude": "um (half peak-to-peak of x_n in steady state)",
+                  "offsets": "um (positive reduces contact deformation)"},
+        "runtime_s": time.perf_counter() - started,
+    }
+    header = [
+        "# bsfs simulate: steady-state response (transient discarded)",
+        f"# frequency_hz = {args.frequency}", f"# force_n = {args.force}",
+        f"# speed_rpm = {float(params.thermal.speed_rpm)}",
+        f"# thermal_enabled = {bool(params.thermal.enabled)}",
+        f"# transient_periods = {args.transient}", f"# periods = {args.periods}",
+        "# columns: time [s]; displacements [m]; velocities [m/s]; accelerations [m/s^2]; "
+        "joint forces [N]; external force on the nut [N]",
+    ]
+    cols = ["time_s", "x_b_m", "x_s_m", "x_n_m", "v_b_m_s", "v_s_m_s", "v_n_m_s", "a_b_m_s2",
+            "a_s_m_s2", "a_n_m_s2", "f_bearing_n", "f_screw_n", "f_nut_n", "force_n"]
+    table = np.column_stack([t, x, v, a, jf, np.asarray(traj.force)])
+    import io
+
+    from ._common import write_bytes_atomic
+
+    buf = io.StringIO()
+    buf.write("\n".join(header) + "\n" + ",".join(cols) + "\n")
+    np.savetxt(buf, table, delimiter=",", fmt="%.10e")
+    write_bytes_atomic(folder / "timeseries.csv", buf.getvalue().encode())
+    fig = response_figure(traj, title=f"BSFS response: {args.frequency:g} Hz, {args.force:g} N, "
+                          f"{float(params.thermal.speed_rpm):g} r/min, thermal "
+                          f"{'on' if params.thermal.enabled else 'off'}")
+    save_figure(fig, folder / "response.png")
+    summary["runtime_s"] = time.perf_counter() - started
+    write_json(folder / "summary.json", summary)
+    print(f"amplitude of x_n: {amp[2] * 1e6:.3f} um (half peak-to-peak); "
+          f"nut offset {summary['nut_offset_um']:.3f} um, bearing offset "
+          f"{summary['bearing_offset_um']:.3f} um; {traj.num_steps} steps")
+    print(f"wrote {folder}/summary.json, timeseries.csv, response.png")
+    return 0
+
+
+def run_params(args) -> int:
+    from ..params import list_presets, params_to_toml, preset_description
+
+    if args.list:
+        for name in list_presets():
+            print(f"{name:18s} {preset_description(name)}")
+        return 0
+    params = load_params_from_args(args)
+    source = args.params or f"preset '{args.preset or 'default'}'"
+    print(params_to_toml(params, header=f"bsfs parameter file (from {source}).\n"
+                         "Units are in the key names; see physics.md section 2."), end="")
+    return 0
+
+
+def run_modes(args) -> int:
+    params = _apply_common(load_params_from_args(args), args)
+    system, md = _report_fn()(params, args.static_force)
+    f = np.asarray(md.frequencies_hz)
+    z = np.asarray(md.damping_ratios)
+    shapes = np.asarray(md.shapes)
+    shapes = shapes / np.abs(shapes).max(axis=0, keepdims=True)
+    if args.json:
+        import json
+
+        from ._common import _jsonable
+
+        print(json.dumps(_jsonable({"natural_frequencies_hz": f, "damping_ratios": z,
+                                    "mode_shapes_bsn": shapes.T,
+                                    "static_stiffness_n_per_um": float(md.static_stiffness) / 1e6,
+                                    **_thermal_dict(system)}), indent=2))
+        return 0
+    print("mode  frequency [Hz]  damping ratio   shape (bearing, screw, nut; max = 1)")
+    for i in range(3):
+        print(f"{i + 1:4d}  {f[i]:14.1f}  {z[i]:13.4f}   "
+              + "  ".join(f"{s:+.3f}" for s in shapes[:, i]))
+    th = _thermal_dict(system)
+    print(f"static axial stiffness at the nut: {float(md.static_stiffness) / 1e6:.1f} N/um")
+    print(f"thermal: {'on' if params.thermal.enabled else 'off'} at "
+          f"{float(params.thermal.speed_rpm):g} r/min; T_bearing/screw/nut = "
+          + "/".join(f"{v:.1f}" for v in th["temperatures_c"].values())
+          + f" C; offsets D_n = {th['nut_offset_um']:.3f} um, D_b = {th['bearing_offset_um']:.3f} um")
+    return 0
