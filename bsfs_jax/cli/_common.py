@@ -2,10 +2,12 @@
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .._files import write_bytes_atomic as write_bytes_atomic
+from .._files import write_text_atomic as write_text_atomic
 
 
 class CLIError(RuntimeError):
@@ -84,20 +86,6 @@ def _jsonable(obj):
 def write_json(path, data) -> None:
     """Write JSON atomically (temp file in the same folder, then rename)."""
     write_bytes_atomic(path, (json.dumps(_jsonable(data), indent=2) + "\n").encode())
-
-
-def write_bytes_atomic(path, payload: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def save_figure(fig, path) -> None:

@@ -1,7 +1,5 @@
 """TOML reading and writing of parameter files, and the bundled presets."""
 
-import os
-import tempfile
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -9,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
+from .._files import write_text_atomic
 from ._params import BallScrewParams, ParameterError
 from ._vocabulary import BY_SECTION, SECTIONS
 
@@ -112,21 +111,6 @@ def save_params(params: BallScrewParams, path, *, header: str = "", overwrite: b
         raise FileExistsError(f"'{path}' exists; pass overwrite=True or choose another name")
     write_text_atomic(path, params_to_toml(params, header=header))
     return path
-
-
-def write_text_atomic(path, text: str) -> None:
-    """Write text to `path` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def params_summary(params: BallScrewParams) -> dict:

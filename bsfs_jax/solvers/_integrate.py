@@ -36,7 +36,8 @@ class SolverSettings:
 
     - `rtol`, `atol`: local error tolerances of the adaptive step-size controller.
     - `max_steps`: hard cap on steps per solve (diffrax semantics).
-    - `solver`: "tsit5" (default), "dopri5", "dopri8" or "kvaerno5" (stiff).
+    - `solver`: diffrax's "tsit5" (default), "dopri5", "dopri8" or "kvaerno5" (stiff); or
+      "dopri5-fused", the fast forward-only path of `_fused.py` (no reverse-mode gradients).
     - `dt0`: initial step [s], or None to let diffrax choose.
     """
 
@@ -59,11 +60,15 @@ _SOLVERS = {
 }
 
 
+FUSED = "dopri5-fused"
+
+
 def make_solver(name: str):
     try:
         return _SOLVERS[name]()
     except KeyError:
-        raise ValueError(f"unknown solver '{name}'; choose one of {sorted(_SOLVERS)}") from None
+        raise ValueError(f"unknown solver '{name}'; choose one of "
+                         f"{sorted(_SOLVERS) + [FUSED]}") from None
 
 
 class IntegrationResult(eqx.Module):
@@ -93,6 +98,13 @@ def integrate(vector_field, y0, args, t0, t1, ts, settings: SolverSettings = Sol
       Use `diffrax.ForwardMode()` for `jax.jacfwd` / Levenberg-Marquardt.
     - `progress`: show a tqdm progress bar (host callback; for CLI runs).
     """
+    if settings.solver == FUSED:
+        from ._fused import integrate_fused
+
+        ys, status, steps = integrate_fused(vector_field, y0, args, t0, t1, ts, settings.rtol,
+                                            settings.atol, settings.max_steps)
+        return IntegrationResult(jnp.asarray(ts), jnp.where(status == OK, ys, jnp.nan), status,
+                                 steps)
     solver = make_solver(settings.solver)
     controller = dfx.PIDController(rtol=settings.rtol, atol=settings.atol)
     kwargs = {}

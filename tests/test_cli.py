@@ -1,0 +1,83 @@
+"""The `bsfs simulate`, `bsfs params` and `bsfs modes` commands, end to end (in-process)."""
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from bsfs_jax.cli import main
+
+
+@pytest.fixture(scope="module")
+def sim_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim")
+    rc = main(["simulate", "--frequency", "500", "--force", "100", "--periods", "4",
+               "--transient", "6", "--samples-per-period", "32", "--out", str(out)])
+    assert rc == 0
+    return out
+
+
+def test_simulate_writes_self_describing_outputs(sim_dir):
+    summary = json.loads((sim_dir / "summary.json").read_text())
+    for key in ("frequency_hz", "force_n", "amplitude_um", "natural_frequencies_hz",
+                "temperatures_c", "nut_offset_um", "bearing_offset_um", "screw_elongation_um"):
+        assert key in summary
+    assert summary["frequency_hz"] == 500.0 and summary["force_n"] == 100.0
+    # 100 N far below resonance: close to the static compliance 100 N / k_static.
+    static_um = 100.0 / summary["static_stiffness_n_per_um"]
+    assert 0.9 * static_um < summary["amplitude_um"] < 1.5 * static_um
+    f = summary["natural_frequencies_hz"]
+    assert f == sorted(f) and 1000 < f[0] < 1300
+    assert summary["temperatures_c"]["nut"] > summary["parameters"]["thermal.ambient_c"]
+    lines = (sim_dir / "timeseries.csv").read_text().splitlines()
+    header = [ln for ln in lines if ln.startswith("#")]
+    assert any("frequency_hz = 500.0" in ln for ln in header)
+    data = np.loadtxt(sim_dir / "timeseries.csv", delimiter=",", comments="#", skiprows=len(header) + 1)
+    assert data.shape == (4 * 32 + 1, 14)
+    amp = 0.5 * np.ptp(data[:, 3]) * 1e6
+    assert amp == pytest.approx(summary["amplitude_um"], rel=1e-9)
+    assert (sim_dir / "response.png").stat().st_size > 10_000
+
+
+def test_no_thermal_flag_zeroes_offsets(tmp_path):
+    rc = main(["simulate", "--frequency", "500", "--force", "100", "--periods", "2",
+               "--transient", "2", "--samples-per-period", "16", "--no-thermal",
+               "--out", str(tmp_path)])
+    assert rc == 0
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["thermal_enabled"] is False and s["nut_offset_um"] == 0.0
+
+
+def test_params_prints_loadable_complete_file(capsys, tmp_path):
+    assert main(["params", "--preset", "nut-balls-60"]) == 0
+    text = capsys.readouterr().out
+    data = tomllib.loads(text)
+    assert data["nut"]["balls"] == 60.0 and data["bearing"]["balls"] == 16.0
+    path = tmp_path / "p.toml"
+    path.write_text(text)
+    assert main(["modes", "--params", str(path), "--json"]) == 0
+    modes = json.loads(capsys.readouterr().out)
+    assert len(modes["natural_frequencies_hz"]) == 3
+
+
+def test_bad_input_is_one_clear_line(capsys, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('base = "default"\n[nut]\nbals = 40\n')
+    assert main(["modes", "--params", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert "bals" in err and "did you mean 'balls'" in err.lower() and "Traceback" not in err
+    assert main(["modes", "--set", "masses.nut_kg=-1"]) == 1
+    err = capsys.readouterr().err
+    assert "masses.nut_kg" in err and "(0, inf)" in err
+    assert main(["simulate", "--frequency", "-5", "--force", "1", "--out", str(tmp_path)]) == 1
+    assert "--frequency must be positive" in capsys.readouterr().err
+
+
+def test_solver_failure_is_reported_with_settings(capsys, tmp_path):
+    rc = main(["simulate", "--frequency", "500", "--force", "100", "--periods", "2",
+               "--transient", "2", "--max-steps", "20", "--out", str(tmp_path)])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert "maximum number of solver steps" in err and "max_steps=20" in err
+    assert not (tmp_path / "summary.json").exists()
