@@ -15,3 +15,4 @@ from ._system import helix_angle as helix_angle
 from ._system import nut_hertz_k as nut_hertz_k
 from ._system import screw_stiffness as screw_stiffness
 from ._system import thermal_state as thermal_state
+from ._system import warmup as warmup

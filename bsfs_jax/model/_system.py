@@ -118,3 +118,14 @@ def build_system(params: BallScrewParams) -> System:
                                      bearing_hertz_k(params), 1.0, thermal.bearing_offset)
     return System(jnp.stack([m.bearing, m.screw, m.nut]), jnp.stack([c.bearing, c.screw, c.nut]),
                   nut, bearing, screw_stiffness(params), thermal)
+
+
+def warmup(params: BallScrewParams, times):
+    """Temperature rises [K] of (bearing, screw, nut) at `times` [s] after a cold start.
+
+    The transient of the same lumped network as `thermal_state`, with steel heat
+    capacities of the three lumped masses; shape (len(times), 3).
+    """
+    th = thermal_state(params)
+    heat = jnp.stack([th.heat_w[0], jnp.zeros_like(th.heat_w[0]), th.heat_w[1]])
+    return physics.transient_temperature_rise(times, th.conductance, th.capacity, heat)

@@ -1,0 +1,69 @@
+"""The fused Dormand-Prince fast path agrees with diffrax and reports failures the same way."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import bsfs_jax as bsfs
+from bsfs_jax.solvers import SolverSettings, integrate
+from bsfs_jax.solvers._integrate import MAX_STEPS, OK
+
+
+def _duffing(t, y, args):
+    delta, alpha, beta, gamma, omega = args
+    x, v = y[0], y[1]
+    return jnp.stack([v, gamma * jnp.cos(omega * t) - delta * v - alpha * x - beta * x**3])
+
+
+ARGS = (0.2, 1.0, 1.0, 0.5, 1.2)
+
+
+def test_fused_matches_diffrax_on_duffing():
+    ts = jnp.linspace(0.0, 30.0, 61)
+    tight = SolverSettings(rtol=1e-11, atol=1e-13, solver="dopri8")
+    ref = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts, tight)
+    fused = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts,
+                      SolverSettings(rtol=1e-11, atol=1e-13, solver="dopri5-fused"))
+    assert int(fused.status) == OK
+    np.testing.assert_allclose(fused.ys, ref.ys, rtol=0, atol=1e-8)
+    # save times are hit exactly, including t0
+    np.testing.assert_allclose(fused.ys[0], [0.1, 0.0])
+
+
+def test_fused_matches_diffrax_on_bsfs_with_contact_loss():
+    params = bsfs.preset("default")
+    kw = dict(frequency_hz=900.0, force_n=5000.0, periods=3, transient_periods=5,
+              samples_per_period=16, rtol=1e-10, atol=1e-14)
+    a = bsfs.simulate(params, solver="dopri5-fused", **kw)
+    b = bsfs.simulate(params, solver="tsit5", **kw)
+    scale = float(jnp.max(jnp.abs(b.displacement)))
+    assert float(jnp.max(jnp.abs(a.displacement - b.displacement))) < 1e-6 * scale
+    assert float(jnp.max(jnp.abs(b.joint_force[:, 2]))) > 4243.0  # a nut half unloads
+
+
+def test_fused_forward_mode_and_vmap():
+    ts = jnp.linspace(0.0, 5.0, 6)
+    settings = SolverSettings(rtol=1e-10, atol=1e-12, solver="dopri5-fused")
+
+    def final_x(gamma, solver_settings):
+        args = (0.2, 1.0, 1.0, gamma, 1.2)
+        return integrate(_duffing, jnp.array([0.0, 0.0]), args, 0.0, 5.0, ts,
+                         solver_settings).ys[-1, 0]
+
+    g = jax.jacfwd(final_x)(0.5, settings)
+    ref = jax.grad(final_x)(0.5, SolverSettings(rtol=1e-10, atol=1e-12, solver="tsit5"))
+    assert float(g) == pytest.approx(float(ref), rel=1e-6)
+    batch = jax.vmap(lambda gm: final_x(gm, settings))(jnp.array([0.3, 0.5, 0.7]))
+    assert float(batch[1]) == pytest.approx(float(final_x(0.5, settings)), rel=1e-12)
+
+
+def test_fused_reports_max_steps_and_nan():
+    ts = jnp.linspace(0.0, 30.0, 4)
+    res = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts,
+                    SolverSettings(max_steps=10, solver="dopri5-fused"))
+    assert int(res.status) == MAX_STEPS
+    assert bool(jnp.all(jnp.isnan(res.ys)))
+    ref = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts,
+                    SolverSettings(max_steps=10, solver="tsit5"))
+    assert int(ref.status) == MAX_STEPS
