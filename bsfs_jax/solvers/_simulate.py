@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from ..model import Sinusoid, System, accelerations, build_system, joint_forces, vector_field
-from ..params import BallScrewParams
+from ..params import BallScrewParams, validate
 from ._integrate import SolverSettings, check_status, integrate
 
 
@@ -134,6 +134,8 @@ def simulate(model, *, frequency_hz=None, force_n=None, forcing=None, y0=None,
         forcing = Sinusoid(force_n, frequency_hz)
     if isinstance(frequency_hz, int | float) and not frequency_hz > 0:
         raise ValueError(f"frequency_hz must be positive, got {frequency_hz}")
+    if isinstance(model, BallScrewParams):
+        validate(model)  # concrete values only; a no-op for traced ones
     horizon = Horizon(int(periods), int(transient_periods), int(samples_per_period))
     settings = SolverSettings(float(rtol), float(atol), int(max_steps), solver)
     traj = _simulate_jit(model, forcing, y0, horizon, settings, adjoint=adjoint,
