@@ -28,6 +28,9 @@ class PreloadedPair(eqx.Module):
     Derived once here so the force law (evaluated at every solver stage) stays cheap:
     - `coeff` = Z K^(-3/2) cos(lambda) [N/m^(3/2)]; `axial` = A sin(beta) [m];
     - `radial_sq` = (A cos(beta))^2 [m^2]; `reach` = A0 + D [m].
+
+    Because of these derived fields, change a pair by rebuilding it with `preloaded_pair`
+    (or change the parameters and call `build_system`), not with `eqx.tree_at` on a field.
     """
 
     balls: jnp.ndarray
