@@ -1,0 +1,266 @@
+"""Pseudo-arclength continuation of periodic orbits: Duffing folds against harmonic balance,
+a period doubling against a brute-force sweep, the BSFS against `simulate`, and the CLI."""
+
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsfs_jax.params import preset
+from bsfs_jax.solvers import (
+    SolverSettings,
+    bsfs_family,
+    continue_orbits,
+    integrate,
+    shoot,
+    simulate,
+)
+
+from .textbook import duffing
+
+class DuffingFamily(eqx.Module):
+    """Duffing oscillator along a line in its parameters: args(p) = base + p * direction.
+
+    args = (delta, alpha, beta, gamma, omega); the period is 2 pi / omega. One class for
+    the frequency and the amplitude continuations, so both share one compiled corrector.
+    """
+
+    base: jax.Array
+    direction: jax.Array
+
+    def __call__(self, p):
+        a = self.base + p * self.direction
+        return (a[0], a[1], a[2], a[3], a[4]), 2 * jnp.pi / a[4]
+
+
+def frequency_family(delta, alpha, beta, gamma):
+    return DuffingFamily(jnp.array([delta, alpha, beta, gamma, 0.0]),
+                         jnp.array([0.0, 0.0, 0.0, 0.0, 1.0]))
+
+
+def amplitude_family(delta, alpha, beta, omega):
+    return DuffingFamily(jnp.array([delta, alpha, beta, 0.0, omega]),
+                         jnp.array([0.0, 0.0, 0.0, 1.0, 0.0]))
+
+
+def harmonic_balance_curve(delta, alpha, beta, gamma, a_max=10.0, n=400_001):
+    """One-term harmonic balance x = A cos(w t - phi) of the Duffing oscillator.
+
+    [(alpha - w^2 + 3/4 beta A^2)^2 + (delta w)^2] A^2 = gamma^2: for each A a quadratic in
+    w^2. Returns the closed curve (w, A) ordered along its arclength (lower root for rising
+    A, then the upper root back down).
+    """
+    amp = np.linspace(1e-4, a_max, n)
+    k = alpha + 0.75 * beta * amp**2
+    b = delta**2 - 2 * k
+    c = k**2 - (gamma / amp) ** 2
+    disc = b * b - 4 * c
+    ok = disc >= 0
+    amp, b, root = amp[ok], b[ok], np.sqrt(disc[ok])
+    w2_lo, w2_hi = (-b - root) / 2, (-b + root) / 2
+    keep = w2_lo > 0  # drop the (unphysical) w^2 <= 0 part of the lower root
+    w = np.concatenate([np.sqrt(w2_lo[keep]), np.sqrt(w2_hi[::-1])])
+    a = np.concatenate([amp[keep], amp[::-1]])
+    return w, a
+
+
+def turning_points(w, a):
+    """(w, A) where w(s) along the curve has a local extremum (the folds)."""
+    dw = np.diff(w)
+    idx = np.flatnonzero(np.sign(dw[1:]) != np.sign(dw[:-1])) + 1
+    return [(w[i], a[i]) for i in idx]
+
+
+HARDENING = dict(delta=0.05, alpha=1.0, beta=0.05, gamma=0.1)
+
+
+@pytest.fixture(scope="module")
+def duffing_frc():
+    family = frequency_family(**HARDENING)
+    return continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                           vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                           p_scale=1.0, amplitude_index=0)
+
+
+def test_duffing_folds_match_harmonic_balance(duffing_frc):
+    branch = duffing_frc
+    w_hb, a_hb = harmonic_balance_curve(**HARDENING)
+    hb_folds = sorted(turning_points(w_hb, a_hb))
+    assert len(hb_folds) == 2  # the HB curve itself has two folds here
+    folds = sorted((b for b in branch.bifurcations if b.kind == "fold"), key=lambda b: b.p)
+    assert len(folds) == 2, [b.kind for b in branch.bifurcations]
+    assert branch.info["stop_reason"] == "left the parameter interval"
+    assert branch.p[-1] > 1.3 and branch.p[0] == pytest.approx(0.8)
+    for fold, (w_fold, a_fold) in zip(folds, hb_folds):
+        assert fold.located
+        # 1-term HB neglects the 3rd harmonic, of relative size ~ beta A^2 / (32 w^2)
+        # ~ 0.6 % here; the fold frequencies agree to 0.1 %, amplitudes to 2 %.
+        assert fold.p == pytest.approx(w_fold, rel=1e-3)
+        assert fold.amplitude == pytest.approx(a_fold, rel=2e-2)
+        # At a fold one Floquet multiplier is +1.
+        assert np.min(np.abs(fold.multipliers - 1.0)) < 1e-4
+    # Peak amplitude (sampled branch maximum) within 1.5 % of HB's.
+    assert np.max(branch.amplitude) == pytest.approx(np.max(a_hb), rel=1.5e-2)
+
+
+def test_duffing_middle_branch_is_unstable(duffing_frc):
+    branch = duffing_frc
+    folds = [b for b in branch.bifurcations if b.kind == "fold"]
+    first, second = sorted(b.index for b in folds)
+    # Between the two folds (along the arclength) the orbits are saddles: a real
+    # multiplier > 1; outside, all multipliers lie inside the unit circle.
+    middle = np.arange(first + 1, second + 1)
+    outside = np.r_[np.arange(0, first + 1), np.arange(second + 1, len(branch))]
+    mu_max = np.max(np.abs(branch.multipliers), axis=1)
+    assert np.all(mu_max[middle] > 1.0) and not np.any(branch.stable[middle])
+    assert np.all(branch.stable[outside])
+    real_max = branch.multipliers[middle, 0]
+    assert np.all(np.abs(real_max.imag) < 1e-12) and np.all(real_max.real > 1.0)
+    # The parameter turns back along the middle branch (it is traversed with w decreasing).
+    assert branch.p[second] < branch.p[first]
+
+
+def test_continuation_does_not_retrace(duffing_frc):
+    assert duffing_frc.info["corrector_traces"] <= 1
+    # Same family structure, new values: the jitted corrector is reused, not retraced.
+    other = frequency_family(delta=0.06, alpha=1.0, beta=0.04, gamma=0.08)
+    branch = continue_orbits(other, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                             vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                             p_scale=1.0, max_points=4)
+    assert branch.info["corrector_traces"] == 0
+    assert len(branch) == 4 and branch.info["stop_reason"] == "max_points"
+
+
+def test_duffing_period_doubling_matches_brute_force():
+    """Double-well Duffing x'' + 0.3 x' - x + x^3 = gamma cos(1.2 t): the period-1 orbit
+    in one well period-doubles as gamma grows (the classic route to chaos)."""
+    omega = 1.2
+    period = 2 * np.pi / omega
+    family = amplitude_family(delta=0.3, alpha=-1.0, beta=1.0, omega=omega)
+    # Brute force: long simulations from x = 1 (the right well) on a grid of gamma; period
+    # 2 shows as x(kT) != x((k+1)T). The first run (gamma = 0.2) gives the start guess.
+    gammas = np.r_[0.2, np.round(np.arange(0.250, 0.2801, 0.0025), 6)]
+    n_transient, n_keep = 600, 4
+    ts = period * jnp.arange(n_transient, n_transient + n_keep + 1)
+    settings = SolverSettings(rtol=1e-9, atol=1e-11)
+
+    def strobe(gamma):
+        args = (0.3, -1.0, 1.0, gamma, omega)
+        return integrate(duffing, jnp.array([1.0, 0.0]), args, 0.0, ts[-1], ts, settings).ys
+
+    ys = np.asarray(jax.jit(jax.vmap(strobe))(jnp.asarray(gammas)))
+    guess = ys[0, -1]
+    gammas, xs = gammas[1:], ys[1:, :, 0]
+    branch = continue_orbits(family, guess, 0.2, 0.32, ds=0.05, vector_field=duffing,
+                             scale=jnp.ones(2), normalise=False)
+    pds = [b for b in branch.bifurcations if b.kind == "period-doubling"]
+    assert len(pds) == 1, [(b.kind, b.p) for b in branch.bifurcations]
+    pd = pds[0]
+    assert pd.located and np.min(np.abs(pd.multipliers + 1.0)) < 1e-4
+    assert np.all(branch.stable[branch.p < pd.p - 1e-3])
+    assert not np.any(branch.stable[branch.p > pd.p + 1e-3])
+
+    split = np.max(np.abs(np.diff(xs, axis=1)), axis=1)
+    period2 = split > 1e-3
+    assert not period2[0] and period2[-1]
+    first = int(np.argmax(period2))
+    assert np.all(period2[first:])  # one clean transition on the grid
+    # The continuation's PD lies in the bracket the sweep observes (grid step 0.0025).
+    assert gammas[first - 1] < pd.p <= gammas[first]
+
+    # Beyond it, shooting for a 2T-periodic orbit finds the period-2 attractor of the sweep.
+    settled = ys[-1, -1]  # gamma = 0.28, after 604 periods
+    assert np.max(np.abs(xs[-1, 2:] - xs[-1, :-2])) < 1e-6  # period 2, not 4, at 0.28
+    args_28, _ = family(gammas[-1])
+    orbit2 = shoot(duffing, settled + 0.01, args_28, period, n_periods=2, scale=jnp.ones(2))
+    np.testing.assert_allclose(orbit2.state, settled, atol=1e-6)
+    assert bool(orbit2.stable) and orbit2.n_periods == 2
+    # A genuine period-2 orbit: one period does not map it onto itself.
+    assert abs(float(xs[-1, -1] - xs[-1, -2])) > 1e-2
+
+
+BSFS_FORCE_N = 3000.0
+
+
+@pytest.fixture(scope="module")
+def bsfs_branch():
+    params = preset("default")
+    family = bsfs_family(params, BSFS_FORCE_N)
+    # Steady state of `simulate` from rest: |mu| ~ 0.92 per period, 0.92^150 ~ 4e-6.
+    traj = simulate(params, frequency_hz=1100.0, force_n=BSFS_FORCE_N, transient_periods=150,
+                    periods=1, samples_per_period=64)
+    branch = continue_orbits(family, traj.final_state, 1100.0, 1130.0, ds=0.1,
+                             amplitude_index=2)
+    return traj, branch
+
+
+def test_bsfs_branch_matches_simulation(bsfs_branch):
+    traj, branch = bsfs_branch
+    assert len(branch) >= 3 and branch.p[-1] > 1130.0
+    assert branch.p[0] == pytest.approx(1100.0)
+    assert np.all(branch.stable)  # the rising resonant branch below the fold (~1300 Hz)
+    assert np.all(np.diff(branch.amplitude) > 0)  # amplitude grows towards resonance
+    assert np.all(np.diff(branch.p) > 0)
+    # The orbit found at 1100 Hz is the attractor `simulate` settles on: same state at
+    # t = kT and the same half peak-to-peak nut amplitude (both on 64 samples per period).
+    amp_sim = float(traj.amplitude(2))
+    assert amp_sim == pytest.approx(float(branch.amplitude[0]), rel=1e-4)
+    scale = np.abs(branch.states[0]).max()
+    np.testing.assert_allclose(np.asarray(traj.final_state), branch.states[0], rtol=0,
+                               atol=1e-4 * scale)
+    assert amp_sim > 50e-6  # a strongly nonlinear regime (~100 um), not a trivial orbit
+
+
+def test_cli_continue(tmp_path, bsfs_branch):
+    from bsfs_jax.cli import main
+
+    out = tmp_path / "cont"
+    code = main(["continue", "--start", "1100", "--stop", "1115", "--force",
+                 str(BSFS_FORCE_N), "--ds", "0.1", "--transient-periods", "150",
+                 "--out", str(out)])
+    assert code == 0
+    for name in ("frc.png", "branch.csv", "bifurcations.json", "summary.json"):
+        assert (out / name).stat().st_size > 0, name
+    lines = [ln for ln in (out / "branch.csv").read_text().splitlines()
+             if not ln.startswith("#")]
+    names = lines[0].split(",")
+    assert names[:2] == ["frequency_hz", "amplitude_um"] and "x_n_m" in names
+    data = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
+    _, branch = bsfs_branch
+    # Same guess and settings as the library call: the rows agree.
+    assert data[0, 0] == pytest.approx(1100.0)
+    assert data[0, 1] == pytest.approx(branch.amplitude[0] * 1e6, rel=1e-6)
+    assert data[-1, 0] > 1115.0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["points"] == len(data) and summary["force_n"] == BSFS_FORCE_N
+    bifs = json.loads((out / "bifurcations.json").read_text())
+    assert isinstance(bifs, list)
+
+
+def test_frc_plot_segments(duffing_frc, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bsfs_jax.plotting._continuation import plot_continuation, stability_segments
+
+    branch = duffing_frc
+    folds = sorted((b for b in branch.bifurcations if b.kind == "fold"), key=lambda b: b.index)
+    lines = stability_segments(branch.p, branch.amplitude, branch.stable, folds)
+    assert [s for _, _, s in lines] == [True, False, True]
+    # The unstable (dashed) part runs exactly from one fold to the other.
+    assert lines[1][0][0] == folds[0].p and lines[1][0][-1] == folds[1].p
+    assert lines[0][0][-1] == folds[0].p and lines[2][0][0] == folds[1].p
+    fig = plot_continuation(branch, y_scale=1.0, x_label="Forcing frequency omega [rad/s]",
+                            y_label="Amplitude of x [-]", title="Duffing FRC")
+    ax = fig.axes[0]
+    assert ax.get_xlabel().endswith("[rad/s]") and ax.get_title() == "Duffing FRC"
+    styles = {ln.get_linestyle() for ln in ax.lines if ln.get_label() in
+              ("stable", "unstable")}
+    assert styles == {"-", "--"}
+    fig.savefig(tmp_path / "duffing_frc.png")
+    plt.close(fig)
