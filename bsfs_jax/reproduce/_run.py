@@ -1,0 +1,329 @@
+"""The computations behind `bsfs reproduce`: one function per group of the paper's figures.
+
+Compile sharing (the machine is small): every single steady-state run goes through
+`bsfs_jax.simulate` with a `System` built beforehand, so thermal on/off, speeds, preloads and
+ball diameters all reuse one compiled function (they only change array values); every
+frequency sweep of Figs. 24-27 uses one `SweepConfig` and one number of points, so the
+continued-sweep kernel is compiled once.
+"""
+
+import dataclasses
+import hashlib
+import time
+from pathlib import Path
+
+import equinox as eqx
+import numpy as np
+
+from ..analysis import (
+    ClassifierSettings,
+    SweepConfig,
+    amplitude_spectrum,
+    bsfs_problem,
+    classify_motion,
+    largest_lyapunov,
+    load_sweep,
+    sweep,
+)
+from ._judge import point_class, subharmonic_fraction
+from ..model import Sinusoid, build_system, vector_field
+from ..params import preset as load_preset
+from ..solvers import SolverSettings, modes, simulate
+
+SPEEDS_RPM = (1000.0, 2000.0, 3000.0)
+PRELOADS_N = (1000.0, 1500.0, 2000.0)
+#: (figure, frequency [Hz], paper's motion label, paper's amplitude [m])
+MOTION_CASES = (
+    ("fig18", 500.0, "period-1", 250e-6),
+    ("fig19", 1082.0, "period-7", 85.12e-6),
+    ("fig20", 382.0, "quasi-periodic", 226e-6),
+    ("fig21", 636.6, "chaotic", 544.5e-6),
+)
+#: (figure, parameter, values, label, unit)
+SWEEP_VARIANTS = (
+    ("fig24", "bearing.balls", (13.0, 16.0, 20.0), "bearing balls per row", ""),
+    ("fig25", "nut.balls", (40.0, 50.0, 60.0), "nut balls per half", ""),
+    ("fig26", "bearing.contact_angle_deg", (30.0, 40.0, 50.0), "bearing contact angle", " deg"),
+    ("fig27", "nut.contact_angle_deg", (30.0, 40.0, 50.0), "nut contact angle", " deg"),
+)
+DIAMETERS_MM = {
+    "bearing.ball_diameter_mm": (6.35, 9.525),  # 1/4" .. 3/8"
+    "nut.ball_diameter_mm": (2.381, 3.969),  # 3/32" .. 5/32"
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class ReproduceSettings:
+    """What a reproduction run computes (static: changing a horizon recompiles).
+
+    - `preset`: parameter preset (default "paper-tuned", see REPRODUCTION.md).
+    - `force_n`: the paper's excitation amplitude for Figs. 18-27 [N].
+    - `thermal_frequency_hz`, `thermal_force_n`: excitation of Figs. 13-17 (the paper does
+      not state it; see the report).
+    - `transient_periods`, `periods`, `samples_per_period`: horizon of single runs.
+    - `lyapunov_periods`: periods averaged for the largest Lyapunov exponent (Figs. 18-21).
+    - `n_diameters`: ball diameters in each waterfall (Figs. 22-23), at
+      `waterfall_frequency_hz`.
+    - `sweep_start_hz`, `sweep_stop_hz`, `sweep_points`: the frequency grid of Figs. 24-27,
+      swept up and down (continued); `sweep_transient`, `sweep_continued_transient`,
+      `sweep_periods`, `sweep_samples_per_period`: its horizon.
+    - `rtol`, `atol`, `solver`: integration settings.
+    """
+
+    preset: str = "paper-tuned"
+    force_n: float = 5000.0
+    thermal_frequency_hz: float = 500.0
+    thermal_force_n: float = 5000.0
+    transient_periods: int = 400
+    periods: int = 64
+    samples_per_period: int = 64
+    lyapunov_periods: int = 200
+    n_diameters: int = 9
+    waterfall_frequency_hz: float = 500.0
+    sweep_start_hz: float = 100.0
+    sweep_stop_hz: float = 3500.0
+    sweep_points: int = 86
+    sweep_transient: int = 300
+    sweep_continued_transient: int = 100
+    sweep_periods: int = 48
+    sweep_samples_per_period: int = 32
+    exciter_periods: int = 20
+    exciter_transient: int = 60
+    rtol: float = 1e-8
+    atol: float = 1e-12
+    solver: str = "dopri5-fused"
+    quick: bool = False
+
+    @classmethod
+    def quick_settings(cls, **overrides) -> "ReproduceSettings":
+        """Coarse grids and short horizons (about a minute on 2 CPU cores): a smoke run."""
+        base = dict(transient_periods=200, periods=24, samples_per_period=32,
+                    lyapunov_periods=24, n_diameters=4, sweep_points=6, sweep_start_hz=200.0,
+                    sweep_stop_hz=2400.0, sweep_transient=60, sweep_continued_transient=12,
+                    sweep_periods=12, sweep_samples_per_period=16, exciter_periods=6,
+                    exciter_transient=20, rtol=1e-7, atol=1e-11, quick=True)
+        base.update(overrides)
+        return cls(**base)
+
+    def solver_settings(self) -> SolverSettings:
+        return SolverSettings(rtol=float(self.rtol), atol=float(self.atol), solver=self.solver)
+
+
+def _steady(system, frequency_hz, force_n, s: ReproduceSettings, *, periods=None,
+            transient=None):
+    traj = simulate(system, frequency_hz=float(frequency_hz), force_n=float(force_n),
+                    periods=periods or s.periods,
+                    transient_periods=s.transient_periods if transient is None else transient,
+                    samples_per_period=s.samples_per_period, rtol=s.rtol, atol=s.atol,
+                    solver=s.solver, throw=False)
+    return traj
+
+
+def _traj_numbers(traj, dof=2) -> dict:
+    x = np.asarray(traj.displacement)[:, dof]
+    return {
+        "status": int(traj.status),
+        "amplitude_m": float(0.5 * (x.max() - x.min())),
+        "max_abs_m": float(np.abs(x).max()),
+        "mean_m": float(x.mean()),
+    }
+
+
+def _thermal_numbers(system) -> dict:
+    th = system.thermal
+    rise = np.asarray(th.temperature_rise_k)
+    return {
+        "rise_k": {"bearing": float(rise[0]), "screw": float(rise[1]), "nut": float(rise[2])},
+        "nut_offset_m": float(th.nut_offset),
+        "bearing_offset_m": float(th.bearing_offset),
+        "nut_preload_deformation_m": float(system.nut.a - system.nut.a0),
+        "bearing_preload_deformation_m": float(system.bearing.a - system.bearing.a0),
+    }
+
+
+@eqx.filter_jit
+def _system_and_modes(params):
+    system = build_system(params)
+    return system, modes(system).frequencies_hz
+
+
+def thermal_experiments(params, s: ReproduceSettings) -> dict:
+    """Figs. 13-17: thermal deformation on/off, speeds, preloads (one compiled simulate)."""
+    f, force = s.thermal_frequency_hz, s.thermal_force_n
+    out = {"frequency_hz": f, "force_n": force, "runs": {}}
+    cases = {"thermal": params, "no_thermal": params.replace("thermal.enabled", False)}
+    for n in SPEEDS_RPM:
+        cases[f"speed_{n:.0f}"] = params.replace("thermal.speed_rpm", n)
+    for fp in PRELOADS_N:
+        cases[f"preload_{fp:.0f}"] = params.replace("nut.preload_n", fp)
+    trajs = {}
+    for name, p in cases.items():
+        system, mode_hz = _system_and_modes(p)
+        traj = _steady(system, f, force, s)
+        trajs[name] = traj
+        row = _traj_numbers(traj)
+        row.update(_thermal_numbers(system))
+        row["first_mode_hz"] = float(np.asarray(mode_hz)[0])
+        out["runs"][name] = row
+    return out, trajs
+
+
+def motion_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
+    """Figs. 18-21: steady response, motion class and largest Lyapunov exponent."""
+    system, _ = _system_and_modes(params)
+    out, trajs = {}, {}
+    for key, f, paper_label, paper_amp in MOTION_CASES:
+        traj = _steady(system, f, s.force_n, s)
+        row = _traj_numbers(traj)
+        period = 1.0 / f
+        lyap = largest_lyapunov(vector_field, traj.final_state, (system, Sinusoid(s.force_n, f)),
+                                interval=period, n_intervals=s.lyapunov_periods,
+                                settings=s.solver_settings())
+        # Drop the first quarter of the intervals: the tangent vector starts in an arbitrary
+        # direction, and its alignment transient would bias a short average upwards.
+        logs = np.asarray(lyap.log_growth)
+        lam = float(np.mean(logs[len(logs) // 4:]) / period) if int(lyap.status) == 0 \
+            else float("nan")
+        strobe = np.asarray(traj.stroboscopic())
+        state = np.asarray(traj.state)
+        x = state[:, 2]
+        motion = classify_motion(strobe, signal=x[:-1], lyapunov_per_period=lam * period,
+                                 scale=0.5 * np.ptp(state, axis=0), status=row["status"],
+                                 settings=ClassifierSettings(tol=2e-3))
+        freqs, amp = amplitude_spectrum(x[:-1], period / s.samples_per_period, window="rect")
+        sub = subharmonic_fraction(amp, freqs * period, guard=0)
+        row.update(frequency_hz=f, lyapunov_per_s=lam, lyapunov_per_period=lam * period,
+                   motion=motion.label, motion_kind=motion.kind,
+                   reading=point_class(motion, sub), subharmonic_fraction=sub,
+                   spectral_line_fraction=motion.line_fraction, paper_motion=paper_label,
+                   paper_amplitude_m=paper_amp)
+        out[key] = row
+        trajs[key] = traj
+    return out, trajs
+
+
+def diameter_experiments(params, s: ReproduceSettings) -> dict:
+    """Figs. 22-23: spectra of the nut response against ball diameter (fixed excitation)."""
+    out = {}
+    f = s.waterfall_frequency_hz
+    for name, (lo, hi) in DIAMETERS_MM.items():
+        values = np.linspace(lo, hi, s.n_diameters)
+        spectra, amps, harmonics, status = [], [], [], []
+        freqs = None
+        for d in values:
+            system, _ = _system_and_modes(params.replace(name, float(d)))
+            traj = _steady(system, f, s.force_n, s)
+            x = np.asarray(traj.displacement)[:-1, 2]
+            dt = float(traj.period) / s.samples_per_period
+            freqs, amp = amplitude_spectrum(x, dt, window="rect")
+            spectra.append(amp)
+            amps.append(0.5 * np.ptp(x))
+            # Amplitudes at the forcing frequency and its 2nd..4th multiples.
+            idx = [int(np.argmin(np.abs(freqs - k * f))) for k in (1, 2, 3, 4)]
+            harmonics.append([float(amp[i]) for i in idx])
+            status.append(int(traj.status))
+        out[name] = {"values_mm": values, "freqs_hz": freqs, "spectra_m": np.array(spectra),
+                     "amplitude_m": np.array(amps), "harmonics_m": np.array(harmonics),
+                     "status": np.array(status), "frequency_hz": f}
+    return out
+
+
+def sweep_experiments(params, s: ReproduceSettings, progress: bool = False,
+                      cache_dir=None) -> dict:
+    """Figs. 24-27: continued up/down frequency sweeps of each variant (one compile).
+
+    With `cache_dir`, each finished sweep is saved there (`SweepResult.save`) with a key of
+    its parameters and settings; a later run with the same key loads it instead of
+    recomputing (so the report can be regenerated cheaply).
+    """
+    freqs = np.linspace(s.sweep_start_hz, s.sweep_stop_hz, s.sweep_points)
+    cfg = SweepConfig(transient_periods=s.sweep_transient,
+                      continued_transient_periods=s.sweep_continued_transient,
+                      periods=s.sweep_periods, samples_per_period=s.sweep_samples_per_period,
+                      lyapunov=True,
+                      lyapunov_align_periods=min(16, s.sweep_continued_transient // 2),
+                      batch_size=0, chunk_size=s.sweep_points,
+                      settings=s.solver_settings())
+    cache, out = {}, {}
+    for fig, name, values, label, unit in SWEEP_VARIANTS:
+        results = {}
+        for v in values:
+            p = params.replace(name, v)
+            key = _sweep_key(p, freqs, s)
+            if key not in cache:
+                cache[key] = _cached_sweep(p, freqs, cfg, s, key, progress,
+                                           None if cache_dir is None else
+                                           Path(cache_dir) / f"{name}={v:g}.npz")
+            results[v] = cache[key]
+        mode_hz = {v: float(np.asarray(_system_and_modes(params.replace(name, v))[1])[0])
+                   for v in values}
+        out[fig] = {"param": name, "label": label, "unit": unit, "results": results,
+                    "mode_hz": mode_hz}
+    return out
+
+
+def _sweep_key(params, freqs, s: ReproduceSettings) -> str:
+    h = hashlib.sha256()
+    for leaf in _leaves(params):
+        h.update(np.ascontiguousarray(np.asarray(leaf, dtype=float)).tobytes())
+    h.update(np.ascontiguousarray(freqs).tobytes())
+    fields = ("force_n", "sweep_transient", "sweep_continued_transient", "sweep_periods",
+              "sweep_samples_per_period", "rtol", "atol", "solver")
+    h.update(repr([getattr(s, f) for f in fields]).encode())
+    return h.hexdigest()[:24]
+
+
+def _cached_sweep(params, freqs, cfg, s, key, progress, path):
+    if path is not None and path.exists():
+        try:
+            res = load_sweep(path)
+            if res.metadata.get("reproduce_key") == key:
+                res.metadata["loaded_from_cache"] = True
+                return res
+        except (OSError, ValueError, KeyError):
+            pass  # unreadable or stale: recompute
+    res = sweep(bsfs_problem(params, force_n=s.force_n), freqs, mode="continued",
+                direction="both", config=cfg, progress=progress,
+                metadata={"reproduce_key": key})
+    if path is not None:
+        res.save(path)
+    return res
+
+
+def _leaves(params):
+    import jax
+
+    return jax.tree_util.tree_leaves(params)
+
+
+def exciter_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
+    """Figs. 10-12: 100 N at 100/120/150 Hz (the model side only; no measurements here)."""
+    system, _ = _system_and_modes(params)
+    out, trajs = {}, {}
+    for f in (100.0, 120.0, 150.0):
+        traj = _steady(system, f, 100.0, s, periods=s.exciter_periods,
+                       transient=s.exciter_transient)
+        a = np.asarray(traj.acceleration)[:, 2]
+        out[f"{f:.0f}"] = {"frequency_hz": f, "status": int(traj.status),
+                           "acceleration_amplitude_m_s2": float(0.5 * np.ptp(a)),
+                           "displacement_amplitude_m": float(0.5 * np.ptp(
+                               np.asarray(traj.displacement)[:, 2]))}
+        trajs[f] = traj
+    return out, trajs
+
+
+def load_params_for(s: ReproduceSettings):
+    return load_preset(s.preset)
+
+
+class Timer:
+    """Wall-clock time of each stage (reported in REPRODUCTION.md)."""
+
+    def __init__(self):
+        self.stages = {}
+        self._t = time.perf_counter()
+
+    def lap(self, name):
+        now = time.perf_counter()
+        self.stages[name] = now - self._t
+        self._t = now
