@@ -1,0 +1,237 @@
+"""Gradients of a metric with respect to named design parameters, and their normalised form.
+
+Parameters are addressed by their TOML vocabulary names ("nut.balls",
+"bearing.contact_angle_deg", ...) and enter in file units, so gradients read
+"um per ball", "Hz per degree", ... The normalised sensitivity
+
+    S_i = d ln m / d ln p_i = (p_i / m) dm/dp_i
+
+is unit-free: a 1 % increase of p_i changes the metric by about S_i %.
+"""
+
+import dataclasses
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..params import BallScrewParams, lookup_key
+from ._metrics import Metric, OperatingPoint, get_metric
+from ._orbit import OrbitSettings
+
+#: Default design parameters (TOML vocabulary): geometry, counts, preloads, the speed
+#: (through the thermal chain), l_0, masses and damping.
+DESIGN_PARAMETERS: tuple[str, ...] = (
+    "nut.balls",
+    "bearing.balls",
+    "nut.ball_diameter_mm",
+    "bearing.ball_diameter_mm",
+    "nut.contact_angle_deg",
+    "bearing.contact_angle_deg",
+    "nut.preload_n",
+    "bearing.preload_n",
+    "thermal.speed_rpm",
+    "screw.length_to_nut_mm",
+    "masses.bearing_kg",
+    "masses.screw_kg",
+    "masses.nut_kg",
+    "damping.bearing_n_s_per_m",
+    "damping.screw_n_s_per_m",
+    "damping.nut_n_s_per_m",
+)
+
+DEFAULT_FREQUENCY_HZ = 120.0  # the paper's exciter tests: 100 N at 100/120/150 Hz
+DEFAULT_FORCE_N = 100.0
+
+
+def check_parameter_names(names) -> tuple[str, ...]:
+    """Validate vocabulary names (ParameterError with suggestions); reject bools/optionals
+    that are absent."""
+    names = tuple(names)
+    if not names:
+        raise ValueError("no design parameters given")
+    for name in names:
+        key = lookup_key(name)
+        if key.kind == "bool":
+            raise ValueError(f"'{name}' is a switch, not a continuous design parameter")
+    if len(set(names)) != len(names):
+        raise ValueError(f"design parameters repeat a name: {', '.join(names)}")
+    return names
+
+
+def parameter_values(params: BallScrewParams, names) -> np.ndarray:
+    """Current values of `names` in file units (ParameterError if an optional is absent)."""
+    out = []
+    for name in names:
+        v = params.get(name)
+        if v is None:
+            raise ValueError(f"'{name}' is not set in these parameters (an optional key); "
+                             "set it in the file or leave it out of the design parameters")
+        out.append(float(v))
+    return np.asarray(out)
+
+
+def with_values(params: BallScrewParams, names, theta) -> BallScrewParams:
+    """`params` with each `names[i]` set to `theta[i]` (file units; traceable)."""
+    for i, name in enumerate(names):
+        params = params.replace(name, theta[i])
+    return params
+
+
+@functools.lru_cache(maxsize=64)
+def compiled(metric_name: str, names: tuple, settings: OrbitSettings):
+    """(value_fn, value_and_grad_fn), each jitted once per (metric, names, settings).
+
+    Both take (theta [file units], params, op) and return the metric in SI units; reuse
+    them with different arrays (no recompilation).
+    """
+    metric = get_metric(metric_name)
+
+    def value(theta, params, op):
+        return metric.fn(with_values(params, names, theta), op, settings)
+
+    return eqx.filter_jit(value), eqx.filter_jit(jax.value_and_grad(value))
+
+
+def operating_point(metric: Metric, frequency_hz=None, force_n=None) -> OperatingPoint:
+    """The operating point for `metric`, with defaults and checks (positive values)."""
+    f = DEFAULT_FREQUENCY_HZ if frequency_hz is None else float(frequency_hz)
+    p = DEFAULT_FORCE_N if force_n is None else float(force_n)
+    if not f > 0:
+        raise ValueError(f"frequency must be positive, got {f} Hz")
+    if not p > 0:
+        raise ValueError(f"force must be positive, got {p} N")
+    return OperatingPoint(f, p)
+
+
+def _check_finite(value, metric: Metric, op: OperatingPoint, what="metric"):
+    if not np.all(np.isfinite(np.asarray(value))):
+        where = (f" at {float(op.frequency_hz):g} Hz, {float(op.force_n):g} N"
+                 if metric.uses_operating_point else "")
+        raise FloatingPointError(
+            f"{what} '{metric.name}' is not finite{where}: "
+            + ("the periodic-orbit Newton solve did not converge (a strongly nonlinear or "
+               "non-period-1 response?). Try a smaller force, another frequency, or more "
+               "OrbitSettings.transient_periods / newton_steps."
+               + (" For frc_peak this also means the frequency-response curve jumps (folds) "
+                  "near its peak at this force, so the peak is not a smooth maximum: "
+                  "lower --force." if metric.name == "frc_peak" else "")
+               if metric.needs_orbit else "check the parameters (unphysical values?)."))
+
+
+def evaluate(metric_name: str, params: BallScrewParams, *, frequency_hz=None, force_n=None,
+             settings: OrbitSettings = OrbitSettings()) -> float:
+    """Value of a metric for `params`, in the metric's reporting unit (`Metric.unit`)."""
+    metric = get_metric(metric_name)
+    op = operating_point(metric, frequency_hz, force_n)
+    value_fn, _ = compiled(metric.name, ("nut.preload_n",), settings)
+    theta = jnp.asarray(parameter_values(params, ("nut.preload_n",)))
+    value = float(value_fn(theta, params, op))
+    _check_finite(value, metric, op)
+    return value * metric.scale
+
+
+@dataclasses.dataclass(frozen=True)
+class SensitivityResult:
+    """Sensitivities of one metric at one design.
+
+    - `metric`, `unit`, `value` (in `unit`), `frequency_hz`, `force_n`;
+    - `names` (vocabulary), `values` (file units), `units` (file units of each name);
+    - `gradient`: d metric [unit] / d parameter [file unit];
+    - `normalised`: d ln metric / d ln parameter;
+    - `method`: "implicit AD" or "central FD (rel. step h)".
+    """
+
+    metric: str
+    unit: str
+    value: float
+    frequency_hz: float | None
+    force_n: float | None
+    names: tuple
+    values: np.ndarray
+    gradient: np.ndarray
+    normalised: np.ndarray
+    method: str
+
+    def ranked(self):
+        """Indices by decreasing |normalised sensitivity|."""
+        return list(np.argsort(-np.abs(self.normalised), kind="stable"))
+
+    def to_dict(self) -> dict:
+        return {
+            "metric": self.metric, "unit": self.unit, "value": self.value,
+            "frequency_hz": self.frequency_hz, "force_n": self.force_n, "method": self.method,
+            "parameters": [
+                {"name": n, "value": float(v), "d_metric_d_param": float(g),
+                 "normalised": float(s)}
+                for n, v, g, s in zip(self.names, self.values, self.gradient,
+                                      self.normalised, strict=True)
+            ],
+        }
+
+    def table_markdown(self) -> str:
+        """Markdown table ranked by |d ln m / d ln p|."""
+        lines = [f"| parameter | value | d m / d p [{self.unit} per file unit] | "
+                 "d ln m / d ln p |", "|---|---|---|---|"]
+        for i in self.ranked():
+            lines.append(f"| `{self.names[i]}` | {self.values[i]:.6g} | "
+                         f"{self.gradient[i]:+.4g} | {self.normalised[i]:+.4f} |")
+        return "\n".join(lines)
+
+
+def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAMETERS, *,
+                  frequency_hz=None, force_n=None,
+                  settings: OrbitSettings = OrbitSettings()) -> SensitivityResult:
+    """All sensitivities of a metric in one reverse-mode pass (implicit differentiation).
+
+    `names` are TOML vocabulary names (default `DESIGN_PARAMETERS`). Orbit metrics use
+    the operating point `frequency_hz`, `force_n` (defaults 120 Hz, 100 N).
+    """
+    metric = get_metric(metric_name)
+    names = check_parameter_names(names)
+    op = operating_point(metric, frequency_hz, force_n)
+    theta = parameter_values(params, names)
+    _, value_and_grad = compiled(metric.name, names, settings)
+    value, grad = value_and_grad(jnp.asarray(theta), params, op)
+    value, grad = float(value), np.asarray(grad)
+    _check_finite(value, metric, op)
+    _check_finite(grad, metric, op, what="gradient of")
+    return _result(metric, op, names, theta, value, grad, "implicit AD")
+
+
+def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
+                                    names=DESIGN_PARAMETERS, *, frequency_hz=None,
+                                    force_n=None, rel_step: float = 1e-4,
+                                    settings: OrbitSettings = OrbitSettings()
+                                    ) -> SensitivityResult:
+    """The same by central finite differences (2 evaluations per parameter), for checks."""
+    metric = get_metric(metric_name)
+    names = check_parameter_names(names)
+    op = operating_point(metric, frequency_hz, force_n)
+    theta = parameter_values(params, names)
+    value_fn, _ = compiled(metric.name, names, settings)
+    value = float(value_fn(jnp.asarray(theta), params, op))
+    grad = np.zeros(len(names))
+    for i in range(len(names)):
+        h = rel_step * max(abs(theta[i]), 1e-12)
+        up, down = theta.copy(), theta.copy()
+        up[i] += h
+        down[i] -= h
+        grad[i] = (float(value_fn(jnp.asarray(up), params, op))
+                   - float(value_fn(jnp.asarray(down), params, op))) / (2 * h)
+    _check_finite(value, metric, op)
+    _check_finite(grad, metric, op, what="finite-difference gradient of")
+    return _result(metric, op, names, theta, value, grad, f"central FD (rel. step {rel_step:g})")
+
+
+def _result(metric, op, names, theta, value_si, grad_si, method) -> SensitivityResult:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        normalised = np.where(value_si != 0, theta * grad_si / value_si, np.nan)
+    uses = metric.uses_operating_point
+    return SensitivityResult(
+        metric.name, metric.unit, value_si * metric.scale,
+        float(op.frequency_hz) if uses and metric.name != "frc_peak" else None,
+        float(op.force_n) if uses else None, names, np.asarray(theta, dtype=float),
+        grad_si * metric.scale, normalised, method)

@@ -1,0 +1,239 @@
+"""Design metrics, implicit sensitivities, optimisation and the design CLI.
+
+Compiles are the cost here: each metric is compiled once (value and value-and-gradient
+for one fixed tuple of parameter names) and reused with different arrays.
+"""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsfs_jax import ParameterError, build_system, physics, preset
+from bsfs_jax.design import (DESIGN_PARAMETERS, METRICS, OperatingPoint, OrbitSettings,
+                             compiled, crosscheck_markdown, finite_difference_sensitivities,
+                             optimize, paper_crosscheck, sensitivities, verify_by_simulation)
+from bsfs_jax.design._sensitivity import parameter_values
+
+# A representative subset for the (expensive) orbit metrics: a count, an angle, the
+# speed through the thermal chain, a mass, a damping and l_0.
+ORBIT_NAMES = ("nut.balls", "bearing.contact_angle_deg", "thermal.speed_rpm",
+               "masses.nut_kg", "damping.nut_n_s_per_m", "screw.length_to_nut_mm")
+OP = dict(frequency_hz=400.0, force_n=100.0)
+# At 100 N the linear-FRF guess is already close to the orbit: Newton needs no transient
+# (and one diffeqsolve fewer is compiled).
+FAST = OrbitSettings(transient_periods=0)
+REL_TOL = 1e-3
+
+
+@pytest.fixture(scope="module")
+def params():
+    return preset()
+
+
+def _assert_matches_fd(ad, fd, *, floor=1e-6):
+    """AD gradient within REL_TOL of central FD for every parameter that matters
+    (|d ln m / d ln p| > floor); negligible ones must be negligible in both."""
+    assert ad.names == fd.names
+    assert ad.value == pytest.approx(fd.value, rel=1e-12)
+    for name, g, f, s in zip(ad.names, ad.gradient, fd.gradient, fd.normalised, strict=True):
+        if abs(s) > floor:
+            assert g == pytest.approx(f, rel=REL_TOL), name
+        else:
+            assert abs(ad.normalised[ad.names.index(name)]) < 10 * floor, name
+
+
+# -- static metrics: all design parameters -------------------------------------------------
+@pytest.mark.parametrize("metric", ["natural_frequency", "static_stiffness", "thermal_error"])
+def test_static_metric_gradients_match_finite_differences(params, metric):
+    ad = sensitivities(metric, params)
+    fd = finite_difference_sensitivities(metric, params)
+    assert len(ad.names) >= 10 and ad.names == DESIGN_PARAMETERS
+    _assert_matches_fd(ad, fd)
+
+
+def test_static_stiffness_is_the_series_chain(params):
+    """k = 1 / (1/k_b + 1/k_s + 1/k_n), joint tangents from the pair force law at u = 0."""
+    system = build_system(params)
+    k_b = jax.grad(physics.pair_force)(0.0, system.bearing)
+    k_n = jax.grad(physics.pair_force)(0.0, system.nut)
+    expected = 1.0 / (1.0 / k_b + 1.0 / system.screw_stiffness + 1.0 / k_n)
+    res = sensitivities("static_stiffness", params)
+    assert res.value == pytest.approx(float(expected) * 1e-6, rel=1e-9)
+    # The series formula's own derivative in l_0: only k_s depends on it, k_s ~ 1/l_0.
+    s_l0 = res.normalised[res.names.index("screw.length_to_nut_mm")]
+    assert s_l0 == pytest.approx(-float(expected / system.screw_stiffness), rel=1e-6)
+
+
+def test_frf_peak_gradient_and_peak_location(params):
+    names = ("nut.balls", "masses.nut_kg", "damping.screw_n_s_per_m", "nut.preload_n")
+    ad = sensitivities("frf_peak", params, names)
+    fd = finite_difference_sensitivities("frf_peak", params, names)
+    _assert_matches_fd(ad, fd)
+    # Light damping: the peak compliance exceeds the static one by the resonant
+    # amplification (about 1 / (2 zeta) ~ 20 for zeta ~ 0.02); check it is > 5x.
+    k = sensitivities("static_stiffness", params).value  # N/um (compiled above)
+    assert ad.value > 5.0 / k
+
+
+# -- orbit metrics --------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def amplitude_sens(params):
+    return (sensitivities("amplitude", params, ORBIT_NAMES, settings=FAST, **OP),
+            finite_difference_sensitivities("amplitude", params, ORBIT_NAMES, settings=FAST,
+                                            **OP))
+
+
+def test_amplitude_gradient_matches_finite_differences(amplitude_sens):
+    ad, fd = amplitude_sens
+    _assert_matches_fd(ad, fd)
+
+
+def test_amplitude_agrees_with_linear_response_at_small_force(params, amplitude_sens):
+    """100 N is nearly linear (physics.md): the orbit amplitude ~ P |H_nn(f)|."""
+    from bsfs_jax import linear_frf
+
+    ad, _ = amplitude_sens
+    h = abs(complex(linear_frf(params, OP["frequency_hz"])[0, 2]))
+    assert ad.value == pytest.approx(OP["force_n"] * h * 1e6, rel=0.02)
+
+
+def test_amplitude_scales_with_force_in_linear_regime(params):
+    value_fn, _ = compiled("amplitude", ORBIT_NAMES, FAST)
+    theta = jnp.asarray(parameter_values(params, ORBIT_NAMES))
+    a1 = float(value_fn(theta, params, OperatingPoint(OP["frequency_hz"], 50.0)))
+    a2 = float(value_fn(theta, params, OperatingPoint(OP["frequency_hz"], 100.0)))
+    assert a2 / a1 == pytest.approx(2.0, rel=0.01)
+
+
+@pytest.fixture(scope="module")
+def floquet_sens(params):
+    names = ORBIT_NAMES[:4]
+    return (sensitivities("floquet", params, names, settings=FAST, **OP),
+            finite_difference_sensitivities("floquet", params, names, settings=FAST, **OP))
+
+
+def test_floquet_gradient_matches_finite_differences(floquet_sens):
+    ad, fd = floquet_sens
+    _assert_matches_fd(ad, fd)
+
+
+def test_floquet_modulus_matches_linear_eigenvalues(params, floquet_sens):
+    """Small force: multipliers ~ exp(lambda T), lambda the linearised state eigenvalues."""
+    from bsfs_jax.solvers import linearise
+
+    k, c, m, _ = linearise(params)
+    a = jnp.block([[jnp.zeros((3, 3)), jnp.eye(3)], [-k / m[:, None], -c / m[:, None]]])
+    lam = np.linalg.eigvals(np.asarray(a))
+    expected = np.max(np.abs(np.exp(lam / OP["frequency_hz"])))
+    ad, _ = floquet_sens
+    assert 0.0 < ad.value < 1.0
+    assert ad.value == pytest.approx(expected, rel=0.02)
+
+
+# -- cross-check rows, optimisation and verification ----------------------------------------
+def test_paper_crosscheck_rows(amplitude_sens, floquet_sens):
+    rows = paper_crosscheck({"amplitude": amplitude_sens[0], "floquet": floquet_sens[0]})
+    covered = {(r["parameter"], r["metric"]) for r in rows}
+    assert ("thermal.speed_rpm", "amplitude") in covered
+    assert ("nut.balls", "floquet") in covered
+    for r in rows:
+        s = r["normalised"]
+        if r["expected"] != 0 and abs(s) >= 1e-3:
+            assert r["agrees"] == (np.sign(s) == r["expected"])
+    table = crosscheck_markdown(rows)
+    assert table.count("\n") == len(rows) + 1
+
+
+def test_optimize_respects_the_stiffness_constraint(params):
+    """Lower nut preload cuts the heat (thermal error) but also the stiffness: with a
+    minimum stiffness just below the start the optimum sits on the constraint."""
+    k0 = sensitivities("static_stiffness", params, ("nut.preload_n",)).value
+    k_min = 0.99 * k0
+    res = optimize("thermal_error", params, ("nut.preload_n",),
+                   {"nut.preload_n": (500.0, 2500.0)}, min_stiffness_n_per_um=k_min)
+    assert res.direction == "min"
+    assert res.constraint_satisfied
+    assert res.optimum[0] < res.start[0]
+    assert res.optimum_value < res.start_value and res.improvement_percent > 0
+    # Active constraint: the optimum stiffness is k_min to the penalty's tolerance.
+    assert res.optimum_stiffness_n_per_um == pytest.approx(k_min, rel=2e-3)
+    # Without the constraint the preload runs to its lower bound.
+    free = optimize("thermal_error", params, ("nut.preload_n",),
+                    {"nut.preload_n": (500.0, 2500.0)})
+    assert free.optimum[0] == pytest.approx(500.0, rel=2e-3)
+    assert "nut.preload_n" in free.at_bound
+
+
+def test_optimize_maximises_natural_frequency_within_bounds(params):
+    res = optimize("natural_frequency", params,
+                   ("bearing.contact_angle_deg", "masses.nut_kg"),
+                   {"bearing.contact_angle_deg": (30.0, 50.0), "masses.nut_kg": (1.0, 2.0)})
+    assert res.direction == "max"
+    assert res.optimum[0] == pytest.approx(50.0, rel=2e-3)  # stiffer bearing
+    assert res.optimum[1] == pytest.approx(1.0, rel=2e-3)  # lighter nut
+    assert res.optimum_value > res.start_value and res.improvement_percent > 0
+
+
+def test_static_stiffness_verified_by_simulation(params):
+    check = verify_by_simulation("static_stiffness", params, force_n=100.0)
+    assert check["checked"]
+    assert check["relative_difference"] < 0.01  # 0.05 f1: dynamic amplification 0.25 %
+
+
+# -- errors and the CLI -------------------------------------------------------------------
+def test_errors_name_the_bad_value(params):
+    with pytest.raises(ValueError, match="unknown metric 'amplitud'.*amplitude"):
+        sensitivities("amplitud", params)
+    with pytest.raises(ParameterError, match="nut.bals"):
+        sensitivities("static_stiffness", params, ("nut.bals",))
+    with pytest.raises(ValueError, match="frequency must be positive"):
+        sensitivities("amplitude", params, ORBIT_NAMES, frequency_hz=-1.0, settings=FAST)
+    with pytest.raises(ValueError, match="not in --vary"):
+        optimize("natural_frequency", params, ("nut.balls",), {"bearing.balls": (10, 20)})
+
+
+def test_cli_sensitivity_writes_json_png_and_report(tmp_path):
+    from bsfs_jax.cli import main
+
+    out = tmp_path / "sens"
+    rc = main(["sensitivity", "--metric", "static_stiffness", "--out", str(out)])
+    assert rc == 0
+    data = json.loads((out / "sensitivity.json").read_text())
+    assert data["metric"] == "static_stiffness" and data["unit"] == "N/um"
+    assert len(data["parameters"]) == len(DESIGN_PARAMETERS)
+    assert (out / "sensitivity.png").stat().st_size > 10_000
+    assert "Comparison with the paper" in (out / "sensitivity.md").read_text()
+
+
+def test_cli_optimize_rejects_bad_bounds(tmp_path, capsys):
+    from bsfs_jax.cli import main
+
+    rc = main(["optimize", "--metric", "natural_frequency", "--vary", "nut.balls",
+               "--bounds", "nut.balls=60:40", "--out", str(tmp_path / "o")])
+    assert rc == 1
+    assert "lower 60.0 must be below upper 40.0" in capsys.readouterr().err
+
+
+def test_metric_table_is_complete():
+    for name in ("frc_peak", "amplitude", "natural_frequency", "static_stiffness", "floquet",
+                 "thermal_error"):
+        assert name in METRICS
+    assert METRICS["natural_frequency"].direction == "max"
+    assert METRICS["amplitude"].direction == "min"
+
+
+@pytest.mark.slow
+def test_frc_peak_gradient_matches_finite_differences(params):
+    """FRC peak at 10 N (a smooth, weakly nonlinear peak): envelope-theorem gradient."""
+    settings = OrbitSettings(transient_periods=0, frc_points=9, frc_refinements=4)
+    names = ("thermal.speed_rpm", "masses.nut_kg", "nut.balls")
+    ad = sensitivities("frc_peak", params, names, force_n=10.0, settings=settings)
+    fd = finite_difference_sensitivities("frc_peak", params, names, force_n=10.0,
+                                         settings=settings)
+    _assert_matches_fd(ad, fd)
+    # Weakly nonlinear: close to 10 N times the linear FRF peak.
+    frf = sensitivities("frf_peak", params, names).value
+    assert ad.value == pytest.approx(10.0 * frf, rel=0.01)
