@@ -1,0 +1,78 @@
+"""The ball screw as a `SweepProblem`: sweep the frequency, the force or any file key."""
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from ..model import Sinusoid, build_system, vector_field
+from ..params import BallScrewParams, lookup_key
+
+FREQUENCY, FORCE = "frequency_hz", "force_n"
+STATE_NAMES = ("x_b", "x_s", "x_n", "v_b", "v_s", "v_n")
+STATE_UNITS = ("m", "m", "m", "m/s", "m/s", "m/s")
+
+# Units of the TOML vocabulary, read from the suffix of a key's name (longest first).
+_SUFFIX_UNITS = (
+    ("_m_per_n23", "m/N^(2/3)"), ("_n_s_per_m", "N s/m"), ("_n_per_um", "N/um"),
+    ("_per_k", "1/K"), ("_gpa", "GPa"), ("_rpm", "r/min"), ("_deg", "deg"), ("_mm", "mm"),
+    ("_um", "um"), ("_kg", "kg"), ("_hz", "Hz"), ("_n", "N"), ("_c", "degC"), ("_w", "W"),
+)
+
+
+def parameter_unit(name: str) -> str:
+    """Unit of a sweepable name ("frequency_hz", "force_n" or a `section.key`)."""
+    key = name.split(".")[-1]
+    for suffix, unit in _SUFFIX_UNITS:
+        if key.endswith(suffix):
+            return unit
+    return ""
+
+
+class BSFSSetup(eqx.Module):
+    """setup(data, value) for the ball screw; data = (params, frequency_hz, force_n)."""
+
+    param: str = eqx.field(static=True)
+
+    def __call__(self, data, value):
+        params, frequency, force = data
+        if self.param == FREQUENCY:
+            frequency = value
+        elif self.param == FORCE:
+            force = value
+        else:
+            params = params.replace(self.param, value)
+        forcing = Sinusoid(force, frequency)
+        return (build_system(params), forcing), forcing.period
+
+
+def bsfs_problem(params: BallScrewParams, param: str = FREQUENCY, *, frequency_hz=None,
+                 force_n=None, y0=None, observe: int = 2):
+    """A `SweepProblem` for the ball screw under P sin(2 pi f t) on the nut (Eq. 31).
+
+    **Arguments:**
+    - `params`: `BallScrewParams`.
+    - `param`: "frequency_hz", "force_n" or any numeric key of the parameter vocabulary
+      in file units, e.g. "nut.balls", "bearing.contact_angle_deg", "nut.preload_n",
+      "thermal.speed_rpm".
+    - `frequency_hz`, `force_n`: the fixed excitation (the swept one may be omitted).
+    - `y0`: cold-start state (default: at rest at x = 0).
+    - `observe`: state index for the spectrum and amplitude (default 2, the nut x_n).
+    """
+    if param not in (FREQUENCY, FORCE):
+        key = lookup_key(param)  # raises ParameterError with suggestions
+        if key.kind != "float":
+            raise ValueError(f"'{param}' is a switch ({key.kind}), not a scalar parameter; "
+                             "it cannot be swept")
+    if frequency_hz is None and param != FREQUENCY:
+        raise ValueError(f"sweeping {param} needs a fixed frequency_hz")
+    if force_n is None and param != FORCE:
+        raise ValueError(f"sweeping {param} needs a fixed force_n")
+    frequency = 1.0 if frequency_hz is None else frequency_hz
+    force = 0.0 if force_n is None else force_n
+    if not float(frequency) > 0:
+        raise ValueError(f"frequency_hz must be positive, got {frequency}")
+    from ._sweep import SweepProblem
+
+    data = (params, jnp.asarray(frequency, dtype=float), jnp.asarray(force, dtype=float))
+    return SweepProblem(vector_field, BSFSSetup(param), data,
+                        jnp.zeros(6) if y0 is None else y0, param, parameter_unit(param),
+                        observe, STATE_NAMES, STATE_UNITS, "s")

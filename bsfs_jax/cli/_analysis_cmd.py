@@ -1,0 +1,110 @@
+"""`bsfs sweep`: batched, resumable sweeps with bifurcation diagram, FRC and waterfall."""
+
+import numpy as np
+
+from ._common import (
+    CLIError,
+    add_params_args,
+    load_params_from_args,
+    out_dir,
+    save_figure,
+    write_json,
+)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "sweep",
+        help="sweep frequency, force or any parameter; bifurcation diagram, FRC, waterfall",
+        description="Steady response at each of N parameter values (vectorised, chunked, "
+        "checkpointed under OUT/checkpoint so that a rerun with the same --out resumes). "
+        "Writes sweep.npz, summary.json (value, amplitude, motion class and largest "
+        "Lyapunov exponent of each point), bifurcation.png, frc.png and waterfall.png.")
+    p.add_argument("--param", default="frequency_hz",
+                   help="'frequency_hz', 'force_n' or a parameter key such as nut.balls, "
+                   "bearing.contact_angle_deg, nut.preload_n (file units)")
+    p.add_argument("--start", type=float, required=True, help="first value")
+    p.add_argument("--stop", type=float, required=True, help="last value")
+    p.add_argument("--num", type=int, required=True, help="number of values (evenly spaced)")
+    p.add_argument("--frequency", type=float, help="excitation frequency [Hz] (fixed)")
+    p.add_argument("--force", type=float, default=5000.0,
+                   help="excitation amplitude [N] on the nut (default 5000)")
+    p.add_argument("--mode", choices=("cold", "continued"), default="cold")
+    p.add_argument("--direction", choices=("up", "down", "both"), default="up",
+                   help="continued mode: sweep up, down or both (hysteresis)")
+    add_params_args(p)
+    p.add_argument("--transient", type=int, default=200,
+                   help="transient periods discarded at cold starts (default 200)")
+    p.add_argument("--continued-transient", type=int, default=20,
+                   help="transient periods of continued points (default 20)")
+    p.add_argument("--periods", type=int, default=64,
+                   help="recorded periods = stroboscopic samples - 1 (default 64)")
+    p.add_argument("--samples-per-period", type=int, default=32)
+    p.add_argument("--no-lyapunov", action="store_true",
+                   help="skip the tangent dynamics (faster; classification then uses the "
+                   "spectrum only)")
+    p.add_argument("--rtol", type=float, default=1e-8)
+    p.add_argument("--atol", type=float, default=1e-12)
+    p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--solver", default="tsit5")
+    p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep (vmap)")
+    p.add_argument("--chunk", type=int, default=32, help="points per checkpoint chunk")
+    p.add_argument("--shard", action="store_true",
+                   help="shard cold-mode chunks over all JAX devices")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", required=True, help="output folder")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..analysis import SweepConfig, bsfs_problem, sweep
+    from ..plotting import plot_bifurcation, plot_frc, plot_waterfall
+    from ..solvers import SolverSettings
+
+    if args.num < 1:
+        raise CLIError(f"--num must be >= 1, got {args.num}")
+    if args.param == "frequency_hz" and min(args.start, args.stop) <= 0:
+        raise CLIError(f"frequencies must be positive, got --start {args.start} "
+                       f"--stop {args.stop}")
+    if args.param != "frequency_hz" and args.frequency is None:
+        raise CLIError(f"sweeping {args.param} needs a fixed --frequency HZ")
+    params = load_params_from_args(args)
+    folder = out_dir(args.out)
+    try:
+        problem = bsfs_problem(params, args.param, frequency_hz=args.frequency,
+                               force_n=args.force)
+        config = SweepConfig(
+            transient_periods=args.transient,
+            continued_transient_periods=args.continued_transient, periods=args.periods,
+            samples_per_period=args.samples_per_period, lyapunov=not args.no_lyapunov,
+            batch_size=args.batch, chunk_size=args.chunk,
+            settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+    values = np.linspace(args.start, args.stop, args.num)
+    source = args.params or f"preset:{args.preset or 'default'}"
+    result = sweep(problem, values, mode=args.mode, direction=args.direction, config=config,
+                   checkpoint_dir=folder / "checkpoint", progress=not args.no_progress,
+                   shard=args.shard,
+                   metadata={"parameters": source, "overrides": list(args.set),
+                             "frequency_hz": args.frequency, "force_n": args.force})
+    result.save(folder / "sweep.npz")
+    summary = result.summary()
+    write_json(folder / "summary.json", summary)
+    force = f"{args.force:g} N" if args.param != "force_n" else "swept force"
+    where = f", {args.frequency:g} Hz" if args.param != "frequency_hz" else ""
+    tag = f"({force}{where}, {source})"
+    save_figure(plot_bifurcation(result, title=f"Bifurcation diagram of the nut displacement "
+                                 f"vs {args.param} {tag}"), folder / "bifurcation.png")
+    save_figure(plot_frc(result), folder / "frc.png")
+    save_figure(plot_waterfall(result), folder / "waterfall.png")
+    failed = summary["failed_points"]
+    print(f"bsfs sweep: {len(summary['points'])} points, {failed} failed, "
+          f"{len(summary['jumps'])} jumps -> {folder}")
+    for j in summary["jumps"]:
+        if j.get("hysteresis") is False:
+            continue  # a steep single-valued flank, not a jump between branches
+        print(f"  {j['direction']} {j['kind']} between {j['value_before']:.6g} and "
+              f"{j['value_after']:.6g} {result.unit}: amplitude {j['amplitude_before']:.4g} -> "
+              f"{j['amplitude_after']:.4g}")
+    return 0

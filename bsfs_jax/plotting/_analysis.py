@@ -1,0 +1,154 @@
+"""Figures of sweeps and responses: bifurcation diagram, FRC with jumps, waterfall, panels.
+
+Every function takes results (a `SweepResult` or arrays) and returns a matplotlib
+`Figure` built without pyplot's global state, so the CLI can save it atomically.
+Displacements in metres are drawn in micrometres for legibility.
+"""
+
+import numpy as np
+from matplotlib.figure import Figure
+
+_DIR_STYLE = {
+    "cold": dict(color="C0", marker="o", ls="-"),
+    "up": dict(color="C3", marker="^", ls="-"),
+    "down": dict(color="C0", marker="v", ls="--"),
+}
+
+
+def _display(unit: str):
+    """(factor, label unit) to draw a quantity in `unit` legibly."""
+    return {"m": (1e6, "um"), "m/s": (1.0, "m/s")}.get(unit, (1.0, unit))
+
+
+def _param_label(result) -> str:
+    return f"{result.param} [{result.unit}]" if result.unit else result.param
+
+
+def _state_label(result, c: int):
+    names, units = result.state_names, result.state_units
+    name = names[c] if names else f"y{c}"
+    unit = units[c] if units else ""
+    factor, shown = _display(unit)
+    return factor, (f"{name} [{shown}]" if shown else name)
+
+
+def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None = None):
+    """Stroboscopic samples of one state against the swept parameter, per direction.
+
+    Failed points are marked with a red x on the axis.
+    """
+    c = result.observe if coordinate is None else coordinate
+    factor, ylabel = _state_label(result, c)
+    fig = Figure(figsize=(8, 5))
+    ax = fig.add_subplot()
+    for d, name in enumerate(result.directions):
+        s = result.strobe[d, :, :, c] * factor
+        x = np.broadcast_to(result.values[:, None], s.shape)
+        style = _DIR_STYLE.get(name, {})
+        ax.plot(x.ravel(), s.ravel(), ".", ms=2.5, color=style.get("color", "k"), alpha=0.6)
+        ax.plot([], [], "o", ms=3, color=style.get("color", "k"), label=f"{name} sweep")
+        bad = result.failed[d]
+        if bad.any():
+            ax.plot(result.values[bad], np.zeros(bad.sum()), "x", color="red",
+                    label="failed point")
+    ax.set_xlabel(_param_label(result))
+    ax.set_ylabel(f"{ylabel} at t = kT")
+    ax.set_title(title or f"Bifurcation diagram: Poincare samples of {ylabel.split(' ')[0]} "
+                 f"vs {result.param}")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8, markerscale=2)
+    return fig
+
+
+def plot_frc(result, *, coordinate: int | None = None, jumps=None, title: str | None = None):
+    """Amplitude (half peak-to-peak) against the parameter for each sweep direction, with
+    the detected jumps drawn as arrows and listed in the legend."""
+    c = result.observe if coordinate is None else coordinate
+    factor, ylabel = _state_label(result, c)
+    fig = Figure(figsize=(8, 5))
+    ax = fig.add_subplot()
+    for d, name in enumerate(result.directions):
+        style = _DIR_STYLE.get(name, {})
+        ax.plot(result.values, result.amplitude[d, :, c] * factor, ms=3, lw=1.2,
+                label=f"{name} sweep", **style)
+    jumps = result.jumps(coordinate=c) if jumps is None else jumps
+    # With both directions, draw only the jumps that leave a coexisting branch.
+    jumps = [j for j in jumps if j.hysteresis is not False]
+    for j in jumps:
+        x = 0.5 * (j.value_before + j.value_after)
+        ax.annotate("", xy=(x, j.amplitude_after * factor), xytext=(x, j.amplitude_before * factor),
+                    arrowprops=dict(arrowstyle="->", color="k", lw=1.5))
+        ax.plot([], [], ls="none", marker=r"$\updownarrow$", color="k",
+                label=f"{j.direction} {j.kind} at {x:.4g} {result.unit}".rstrip())
+    ax.set_xlabel(_param_label(result))
+    ax.set_ylabel(f"amplitude of {ylabel}")
+    ax.set_title(title or f"Frequency-response curve ({result.mode} sweep)"
+                 if result.param == "frequency_hz" else
+                 title or f"Response amplitude vs {result.param} ({result.mode} sweep)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    return fig
+
+
+def plot_waterfall(result, *, direction: str | None = None, max_harmonic: float = 8.0,
+                   title: str | None = None):
+    """3-D waterfall: amplitude spectrum of the observed state (frequency in Hz when the
+    time unit is s) against the swept parameter."""
+    d = 0 if direction is None else result.direction_index(direction)
+    c = result.observe
+    factor, ylabel = _state_label(result, c)
+    fig = Figure(figsize=(9, 6))
+    ax = fig.add_subplot(projection="3d")
+    keep = result.spectrum_order <= max_harmonic
+    freq = result.spectrum_hz()[:, keep]
+    for i, v in enumerate(result.values):
+        a = result.spectrum[d, i, keep] * factor
+        if not np.all(np.isfinite(a)):
+            continue
+        ax.plot(freq[i], np.full(freq.shape[1], v), a, lw=0.7, color="C0")
+    funit = "Hz" if result.time_unit == "s" else f"1/{result.time_unit}"
+    ax.set_xlabel(f"frequency [{funit}]")
+    ax.set_ylabel(_param_label(result))
+    ax.set_zlabel(f"amplitude of {ylabel}")
+    ax.set_title(title or f"Waterfall: spectrum of {ylabel.split(' ')[0]} vs {result.param}")
+    return fig
+
+
+def plot_response(t, displacement, velocity, strobe, freqs_hz, amplitude, *,
+                  title: str = "Response", displacement_unit: str = "m",
+                  velocity_unit: str = "m/s"):
+    """Four panels as in the paper's Figs. 18-21: time history, phase portrait,
+    stroboscopic Poincare section and amplitude spectrum.
+
+    `strobe` is (k, 2): (displacement, velocity) at t = kT.
+    """
+    fx, ux = _display(displacement_unit)
+    fv, uv = _display(velocity_unit)
+    fig = Figure(figsize=(11, 8))
+    axs = fig.subplots(2, 2)
+    ax = axs[0, 0]
+    ax.plot(np.asarray(t) * 1e3, np.asarray(displacement) * fx, lw=0.8)
+    ax.set_xlabel("time [ms]")
+    ax.set_ylabel(f"displacement [{ux}]")
+    ax.set_title("Time history")
+    ax = axs[0, 1]
+    ax.plot(np.asarray(displacement) * fx, np.asarray(velocity) * fv, lw=0.5)
+    ax.set_xlabel(f"displacement [{ux}]")
+    ax.set_ylabel(f"velocity [{uv}]")
+    ax.set_title("Phase portrait")
+    ax = axs[1, 0]
+    s = np.asarray(strobe)
+    ax.plot(s[:, 0] * fx, s[:, 1] * fv, ".", ms=4, color="C3")
+    ax.set_xlabel(f"displacement [{ux}]")
+    ax.set_ylabel(f"velocity [{uv}]")
+    ax.set_title("Poincare section (t = kT)")
+    ax = axs[1, 1]
+    ax.plot(np.asarray(freqs_hz), np.asarray(amplitude) * fx, lw=0.8)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel(f"amplitude [{ux}]")
+    ax.set_title("Amplitude spectrum (Hann window)")
+    for a in axs.ravel():
+        a.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
