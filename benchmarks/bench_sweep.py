@@ -70,6 +70,9 @@ def parse():
     p.add_argument("--repeats", type=int, default=None,
                    help="timed repeats of the fast runs (default 3 quick, 1 full)")
     p.add_argument("--scipy-points", type=int, default=3)
+    p.add_argument("--solver", default="dopri5-fused",
+                   help="our integrator: 'dopri5-fused' (fast forward path) or a diffrax "
+                   "solver name such as 'tsit5'")
     p.add_argument("--engine", choices=("map", "queue", "both"), default="map",
                    help="cold-sweep engine(s) to time (see SweepConfig.engine)")
     p.add_argument("--samples-per-period", type=int, default=1,
@@ -132,7 +135,7 @@ def main():
 
     # --- ours: cold sweep -------------------------------------------------------------
     problem = bsfs_problem(params, "frequency_hz", force_n=force)
-    settings = SolverSettings(rtol=rtol, atol=atol, max_steps=4_000_000)
+    settings = SolverSettings(rtol=rtol, atol=atol, max_steps=4_000_000, solver=args.solver)
     spp = args.samples_per_period
     engines = ("map", "queue") if args.engine == "both" else (args.engine,)
     variants = [(e, False) for e in engines]
@@ -260,7 +263,7 @@ def main():
                  "engines": {e: {k: v for k, v in r.items() if k != "result"}
                              for e, r in runs.items()},
                  "steps": ours_steps, "batch": args.batch, "chunk": args.chunk,
-                 "devices": jax.device_count(), "solver": "tsit5",
+                 "devices": jax.device_count(), "solver": args.solver,
                  "failed_points": int(np.sum(cold.failed))},
         "numba": {"seconds": numba_s, "runs": nb_times, "steps": int(nb_steps.sum()),
                   "parallel_all_cores_seconds": par_s,
@@ -296,7 +299,7 @@ def main():
     (out / f"{name}.json").write_text(json.dumps(res, indent=2, default=bool) + "\n")
     r = res["ratios"]
     engine_rows = "\n".join(
-        f"| ours, cold, {e} (Tsit5, batch {args.batch}, {r['devices']} device(s)) "
+        f"| ours, cold, {e} ({args.solver}, batch {args.batch}, {r['devices']} device(s)) "
         f"| {r['seconds']:.2f} | {r['steps']} | {r['seconds'] / r['steps'] * 1e6:.2f} | "
         f"{'1 (best)' if e == best else '%.2f x best' % (r['seconds'] / ours_s)} |"
         for e, r in runs.items())

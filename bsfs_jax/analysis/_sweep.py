@@ -33,6 +33,7 @@ import datetime
 import hashlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -73,7 +74,8 @@ class SweepConfig:
       when done; avoids the lockstep waste when horizons differ, e.g. frequency sweeps;
       without `lyapunov` only, falls back to "map" otherwise).
     - `max_slice_periods`: queue engine: at most this many periods per slice.
-    - `settings`: `SolverSettings` (tolerances, max_steps, solver).
+    - `settings`: `SolverSettings` (tolerances, max_steps, solver; default the fused
+      Dormand-Prince 5(4) loop "dopri5-fused", or any diffrax solver name).
     """
 
     transient_periods: int = 200
@@ -87,7 +89,9 @@ class SweepConfig:
     window: str = "hann"
     engine: str = "map"
     max_slice_periods: int = 64
-    settings: SolverSettings = SolverSettings()
+    # Sweeps are forward-only, so they default to the fused Dormand-Prince loop (about 3x
+    # cheaper per step than diffrax's general loop here; cross-checked in tests/test_fused.py).
+    settings: SolverSettings = SolverSettings(solver="dopri5-fused")
 
     def __post_init__(self):
         for name in ("transient_periods", "continued_transient_periods", "periods",
@@ -683,14 +687,19 @@ def _save_npz_atomic(path, **arrays) -> None:
 # The driver
 
 
+def _stable_text(obj) -> str:
+    """repr-like text without memory addresses, so it is equal across processes."""
+    return re.sub(r" at 0x[0-9a-fA-F]+", "", str(obj))
+
+
 def _fingerprint(problem: SweepProblem, values, y0s, mode, directions, cfg) -> str:
     h = hashlib.sha256()
     leaves, treedef = jax.tree_util.tree_flatten(eqx.filter(problem, eqx.is_array))
-    h.update(str(treedef).encode())
+    h.update(_stable_text(treedef).encode())
     for leaf in leaves:
         h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
     for part in (getattr(problem.vector_field, "__qualname__", repr(problem.vector_field)),
-                 getattr(problem.setup, "__qualname__", "") + repr(problem.setup),
+                 getattr(problem.setup, "__qualname__", "") + _stable_text(repr(problem.setup)),
                  problem.param, mode, ",".join(directions),
                  json.dumps(_jsonable(cfg.to_dict()), sort_keys=True)):
         h.update(part.encode())

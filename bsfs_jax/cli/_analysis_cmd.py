@@ -46,7 +46,9 @@ def register(sub) -> None:
     p.add_argument("--rtol", type=float, default=1e-8)
     p.add_argument("--atol", type=float, default=1e-12)
     p.add_argument("--max-steps", type=int, default=4_000_000)
-    p.add_argument("--solver", default="tsit5")
+    p.add_argument("--solver", default="dopri5-fused",
+                   help="integrator: dopri5-fused (default, fast forward-only loop) or a "
+                   "diffrax solver: tsit5, dopri5, dopri8, kvaerno5")
     p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep (vmap)")
     p.add_argument("--chunk", type=int, default=32, help="points per checkpoint chunk")
     p.add_argument("--shard", action="store_true",

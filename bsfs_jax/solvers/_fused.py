@@ -47,6 +47,7 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
     t0 = jnp.asarray(t0, dtype=float)
     t1 = jnp.asarray(t1, dtype=float)
     n_save = ts.shape[0]
+    eps = 64 * jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(t1), jnp.abs(t0))
     f0 = vector_field(t0, y0, args)
     scale0 = atol + rtol * jnp.abs(y0)
     d0, d1 = _rms(y0 / scale0), _rms(f0 / scale0)
@@ -64,7 +65,9 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
     def body(s):
         t, y, h, k1, n, idx, ys, status = s
         t_next_save = ts[jnp.minimum(idx, n_save - 1)]
-        target = jnp.where(idx < n_save, jnp.minimum(t_next_save, t1), t1)
+        pending = (idx < n_save) & (t_next_save <= t1 + eps)
+        # A save time a few ulps past t1 (t1 and ts computed separately) counts as t1.
+        target = jnp.where(pending, jnp.minimum(t_next_save, t1), t1)
         clipped = t + h >= target
         h_eff = jnp.where(clipped, target - t, h)
         ks = [k1]
@@ -84,7 +87,7 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
         h_new = jnp.where(accept & clipped, jnp.maximum(h_prop, jnp.minimum(h, h_prop * 10)),
                           h_prop)
         t_new = jnp.where(clipped, target, t + h_eff)
-        hit = accept & clipped & (idx < n_save) & (target == t_next_save)
+        hit = accept & clipped & pending
         ys = jnp.where(hit, ys.at[jnp.minimum(idx, n_save - 1)].set(y_new), ys)
         idx = idx + hit.astype(idx.dtype)
         tiny = h_new < 1e-14 * jnp.maximum(jnp.abs(t), 1e-3)
