@@ -25,6 +25,9 @@ def register(sub) -> None:
     p.add_argument("--rtol", type=float, default=1e-8)
     p.add_argument("--atol", type=float, default=1e-12, help="absolute tolerance [SI]")
     p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--solver", default="dopri5-fused",
+                   help="dopri5-fused (default: fast forward-only loop) or a diffrax solver: "
+                   "tsit5, dopri5, dopri8, kvaerno5")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_simulate)
 
@@ -105,7 +108,8 @@ def run_simulate(args) -> int:
     traj = simulate(system, frequency_hz=args.frequency, force_n=args.force,
                     periods=args.periods, transient_periods=args.transient,
                     samples_per_period=args.samples_per_period, rtol=args.rtol, atol=args.atol,
-                    max_steps=args.max_steps, progress=sys.stderr.isatty())
+                    max_steps=args.max_steps, solver=args.solver,
+                    progress=sys.stderr.isatty() and args.solver != "dopri5-fused")
     t = np.asarray(traj.t)
     x = np.asarray(traj.displacement)
     v = np.asarray(traj.velocity)
@@ -136,7 +140,7 @@ def run_simulate(args) -> int:
                                         "amplitude_um": float(spec[i]) * 1e6} for i in top],
         "settings": {"periods": args.periods, "transient_periods": args.transient,
                      "samples_per_period": args.samples_per_period, "rtol": args.rtol,
-                     "atol": args.atol, "solver": "tsit5", "num_steps": int(traj.num_steps)},
+                     "atol": args.atol, "solver": args.solver, "num_steps": int(traj.num_steps)},
         "parameters": params_summary(params),
         "units": {"amplitude": "um (half peak-to-peak of x_n in steady state)",
                   "offsets": "um (positive reduces contact deformation)"},

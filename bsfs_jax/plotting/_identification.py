@@ -1,0 +1,107 @@
+"""Figures of the identification: measured vs model acceleration, correlations, test plans.
+
+Plotting only: every number comes from the identification results passed in.
+"""
+
+import numpy as np
+
+
+def fit_figure(records, model_coeffs, frequencies_hz, models=None, *, periods: float = 3.0,
+               max_records: int = 18):
+    """Per record: time (a few periods, DC removed) and amplitude spectrum, measured vs model.
+
+    `records`: objects with `time`, `acceleration`, `sample_rate_hz`, `name`;
+    `model_coeffs`: complex acceleration harmonics per record; `frequencies_hz`: refined
+    excitation frequency per record; `models`: optional label per record.
+    """
+    import matplotlib.pyplot as plt
+
+    n = min(len(records), max_records)
+    fig, axes = plt.subplots(n, 2, figsize=(11, 2.0 * n + 0.6), squeeze=False)
+    for i in range(n):
+        rec, c, f = records[i], np.asarray(model_coeffs[i]), float(frequencies_hz[i])
+        t, a = rec.time, rec.acceleration - np.mean(rec.acceleration)
+        m = t < t[0] + periods / f
+        k = np.arange(1, c.size + 1)
+        model = np.real(np.exp(2j * np.pi * f * np.outer(t[m], k)) @ c)
+        ax = axes[i, 0]
+        ax.plot(1e3 * t[m], a[m], ".", ms=2, color="0.45", label="measured")
+        ax.plot(1e3 * t[m], model, "-", color="C3", lw=1.2, label="model (steady state)")
+        ax.set_ylabel("accel. [m/s²]")
+        label = f" ({models[i]})" if models is not None else ""
+        ax.set_title(f"{rec.name}{label}", fontsize=9)
+        if i == n - 1:
+            ax.set_xlabel("time [ms]")
+        if i == 0:
+            ax.legend(fontsize=7, loc="upper right")
+        ax = axes[i, 1]
+        win = np.hanning(a.size)
+        spec = 2 * np.abs(np.fft.rfft(a * win)) / np.sum(win)
+        fr = np.fft.rfftfreq(a.size, 1 / rec.sample_rate_hz)
+        ax.semilogy(fr, spec, color="0.45", lw=0.7, label="measured (Hann)")
+        ax.semilogy(f * k, np.abs(c), "o", mfc="none", color="C3", label="model harmonics")
+        ax.set_xlim(0, min(rec.sample_rate_hz / 2, 4.5 * f))
+        ax.set_ylabel("|accel.| [m/s²]")
+        if i == n - 1:
+            ax.set_xlabel("frequency [Hz]")
+        if i == 0:
+            ax.legend(fontsize=7, loc="upper right")
+    fig.suptitle("Worktable acceleration: measured vs identified model", fontsize=11)
+    fig.tight_layout()
+    return fig
+
+
+def correlation_figure(names, correlation, singular_values, direction_std=None,
+                       threshold=None):
+    """Correlation matrix of the estimates and the scaled singular values."""
+    import matplotlib.pyplot as plt
+
+    corr = np.asarray(correlation, float)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.8),
+                                   gridspec_kw=dict(width_ratios=[1.2, 1]))
+    im = ax1.imshow(np.nan_to_num(corr), vmin=-1, vmax=1, cmap="RdBu_r")
+    ax1.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=8)
+    ax1.set_yticks(range(len(names)), names, fontsize=8)
+    for i in range(len(names)):
+        for j in range(len(names)):
+            if np.isfinite(corr[i, j]):
+                ax1.text(j, i, f"{corr[i, j]:.2f}", ha="center", va="center", fontsize=6)
+    fig.colorbar(im, ax=ax1, label="correlation [-]")
+    ax1.set_title("Correlation of the estimates (Gauss-Newton)")
+    sv = np.asarray(singular_values, float)
+    sv = sv / sv[0]
+    ax2.semilogy(np.arange(1, sv.size + 1), sv, "o-", label="scaled singular value")
+    if direction_std is not None:
+        ax2.semilogy(np.arange(1, sv.size + 1), direction_std, "s--",
+                     label="std of the combination")
+    if threshold is not None:
+        ax2.axhline(threshold, color="C3", lw=0.8, ls=":", label=f"identified below {threshold}")
+    ax2.set_xlabel("direction (right singular vector) index")
+    ax2.set_ylabel("value [-]")
+    ax2.set_title("Identifiability: scaled Jacobian spectrum")
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plan_figure(plan_names, param_names, rel_std, *, threshold=0.1, recommended=None):
+    """Expected standard errors (relative, or um for offsets) of each parameter per plan."""
+    import matplotlib.pyplot as plt
+
+    rel = np.asarray(rel_std, float)
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    width = 0.8 / len(plan_names)
+    x = np.arange(len(param_names))
+    for j, name in enumerate(plan_names):
+        lbl = name + ("  (recommended)" if name == recommended else "")
+        ax.bar(x + (j - (len(plan_names) - 1) / 2) * width, np.minimum(rel[j], 1e6), width,
+               label=lbl)
+    ax.axhline(threshold, color="k", ls=":", lw=0.8, label=f"identifiable below {threshold}")
+    ax.set_yscale("log")
+    ax.set_xticks(x, param_names, rotation=30, ha="right")
+    ax.set_ylabel("expected std (relative; um for offsets)")
+    ax.set_title("Test plans: expected standard errors from the Fisher information\n"
+                 "(bars at 1e6: not identifiable, infinite variance)", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

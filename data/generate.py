@@ -1,0 +1,52 @@
+"""Regenerate the bundled SYNTHETIC exciter records from data/truth.toml (seeded).
+
+    python data/generate.py            # both sets (a few minutes on 2 CPU cores)
+    python data/generate.py --only paper-test
+
+Every record is the full nonlinear model (Eq. 31) driven by a distorted, drifting shaker force,
+passed through an anti-alias filter, decimated to 10.24 kHz, offset and made noisy
+(identification/_synth.py). See data/README.md.
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+import bsfs_jax  # noqa: E402
+from identification import synthesize, write_record_csv  # noqa: E402
+
+FS = 10240.0
+# (set, file stem, frequency [Hz], force [N], speed [r/min], duration [s])
+PLAN = [("paper-test", f"paper_{f}hz", float(f), 100.0, 2000.0, 2.0) for f in (100, 120, 150)]
+PLAN += [("stepped-sine", f"sine_{f:04d}hz_100n_2000rpm", float(f), 100.0, 2000.0, 0.5)
+         for f in (100, 150, 250, 400, 600, 800, 950, 1050, 1150, 1300, 1700, 2500)]
+PLAN += [("stepped-sine", f"sine_{f:04d}hz_3000n_2000rpm", float(f), 3000.0, 2000.0, 0.5)
+         for f in (150, 300)]
+PLAN += [("stepped-sine", f"sine_{f:04d}hz_100n_{rpm}rpm", float(f), 100.0, float(rpm), 0.5)
+         for rpm in (1000, 3000) for f in (150, 950)]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=["paper-test", "stepped-sine"])
+    args = ap.parse_args(argv)
+    truth = bsfs_jax.load_params(HERE / "truth.toml")
+    for seed, (group, stem, f, force, rpm, dur) in enumerate(PLAN):
+        if args.only and group != args.only:
+            continue
+        params = truth.replace("thermal.speed_rpm", rpm)
+        rec = synthesize(params, f, force, duration_s=dur, sample_rate_hz=FS, seed=1000 + seed)
+        rec.meta["source"] = "synthetic: data/generate.py from data/truth.toml"
+        path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
+        print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
