@@ -26,10 +26,11 @@ import dataclasses
 import io
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from bsfs_jax.params import write_text_atomic
 
 COLUMNS = ("time_s", "force_n", "acceleration_m_s2")
 REQUIRED_META = ("frequency_hz", "force_amplitude_n", "sample_rate_hz", "speed_rpm", "ambient_c")
@@ -354,16 +355,20 @@ def write_record_uff(path, record_or_arrays, meta: dict | None = None) -> Path:
 
     t, force, acc, meta = _unpack(record_or_arrays, meta)
     path = Path(path)
-    if path.exists():
-        path.unlink()
+    # Written beside the target and renamed into place, so an existing file is replaced
+    # only by a complete new one.
+    tmp = path.with_name(f".{path.name}.tmp")
+    if tmp.exists():
+        tmp.unlink()
     # UFF id lines hold 80 characters: frequency/force/rate in id4, speed/ambient in id5.
     id4 = "; ".join(f"{k}={meta[k]:.9g}" for k in REQUIRED_META[:3] if k in meta)
     id5 = "; ".join(f"{k}={meta[k]:.9g}" for k in REQUIRED_META[3:] if k in meta)
-    uff = pyuff.UFF(str(path))
+    uff = pyuff.UFF(str(tmp))
     for kind, data, name in ((_UFF_FORCE, force, "force"), (_UFF_ACC, acc, "acceleration")):
         uff.write_sets(uff58_set(t, data, kind, id1=f"bsfs exciter record: {name}", id4=id4,
                                  id5=id5),
                        mode="add")
+    os.replace(tmp, path)
     return path
 
 
@@ -417,15 +422,5 @@ def write_record_csv(path, record_or_arrays, meta: dict | None = None, *,
     t, force, acc, meta = _unpack(record_or_arrays, meta)
     text = format_record_csv(t, force, acc, meta, digits=digits)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_text_atomic(path, text)
     return path

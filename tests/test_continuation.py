@@ -246,7 +246,7 @@ def test_frc_plot_segments(duffing_frc, tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bsfs_jax.plotting._continuation import plot_continuation, stability_segments
+    from bsfs_jax.plotting import plot_continuation, stability_segments
 
     branch = duffing_frc
     folds = sorted((b for b in branch.bifurcations if b.kind == "fold"), key=lambda b: b.index)

@@ -52,7 +52,7 @@ def run_continue(args) -> int:
     import bsfs_jax
 
     from ..params import params_summary
-    from ..plotting._continuation import plot_continuation
+    from ..plotting import plot_continuation
     from ..solvers import SolverSettings, bsfs_family, continue_orbits, simulate
 
     if not (args.start > 0 and args.stop > 0) or args.start == args.stop:

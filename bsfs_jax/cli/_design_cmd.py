@@ -94,7 +94,7 @@ def run_sensitivity(args) -> int:
     from ..design import (DESIGN_PARAMETERS, crosscheck_markdown,
                           finite_difference_sensitivities, get_metric, paper_crosscheck,
                           sensitivities)
-    from ..plotting._design import tornado
+    from ..plotting import tornado
 
     params = load_params_from_args(args)
     names = _names(args.vary) if args.vary else DESIGN_PARAMETERS
@@ -164,7 +164,7 @@ def run_sensitivity(args) -> int:
 def run_optimize(args) -> int:
     from ..design import get_metric, optimize, verify_by_simulation
     from ..params import params_to_toml, write_text_atomic
-    from ..plotting._design import optimization_summary
+    from ..plotting import optimization_summary
 
     params = load_params_from_args(args)
     metric = get_metric(args.metric)

@@ -72,7 +72,7 @@ def run_identify(args) -> int:
     from identification import _report
     from identification._records import RecordError
 
-    from ..plotting._identification import correlation_figure, fit_figure
+    from ..plotting import correlation_figure, fit_figure
 
     prior = load_params_from_args(args)
     names = _fit_names(args.fit)
@@ -131,7 +131,7 @@ def run_synth(args) -> int:
 def run_plan(args) -> int:
     import identification as idn
 
-    from ..plotting._identification import plan_figure
+    from ..plotting import plan_figure
 
     prior = load_params_from_args(args)
     names = _fit_names(args.fit)

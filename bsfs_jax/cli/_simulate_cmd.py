@@ -89,7 +89,7 @@ def run_simulate(args) -> int:
     import bsfs_jax
 
     from ..params import params_summary
-    from ..plotting._response import amplitude_spectrum, response_figure
+    from ..plotting import response_figure, trajectory_spectrum
     from ..solvers import simulate
 
     if not args.frequency > 0:
@@ -118,7 +118,7 @@ def run_simulate(args) -> int:
     amp = 0.5 * (x.max(axis=0) - x.min(axis=0))
     strobe = x[:: traj.samples_per_period, 2]
     spread = np.ptp(strobe) / max(amp[2], 1e-30)
-    freq, spec = amplitude_spectrum(t, x[:, 2])
+    freq, spec = trajectory_spectrum(traj)
     top = np.argsort(spec)[::-1][:5]
     summary = {
         "bsfs_version": bsfs_jax.__version__,

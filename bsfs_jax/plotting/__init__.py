@@ -4,3 +4,12 @@ from ._analysis import plot_bifurcation as plot_bifurcation
 from ._analysis import plot_frc as plot_frc
 from ._analysis import plot_response as plot_response
 from ._analysis import plot_waterfall as plot_waterfall
+from ._continuation import plot_continuation as plot_continuation
+from ._continuation import stability_segments as stability_segments
+from ._design import optimization_summary as optimization_summary
+from ._design import tornado as tornado
+from ._identification import correlation_figure as correlation_figure
+from ._identification import fit_figure as fit_figure
+from ._identification import plan_figure as plan_figure
+from ._response import response_figure as response_figure
+from ._response import trajectory_spectrum as trajectory_spectrum

@@ -116,39 +116,56 @@ def plot_waterfall(result, *, direction: str | None = None, max_harmonic: float 
 
 def plot_response(t, displacement, velocity, strobe, freqs_hz, amplitude, *,
                   title: str = "Response", displacement_unit: str = "m",
-                  velocity_unit: str = "m/s"):
+                  velocity_unit: str = "m/s", name: str = "displacement",
+                  max_frequency_hz: float | None = None, window: str = "hann"):
     """Four panels as in the paper's Figs. 18-21: time history, phase portrait,
-    stroboscopic Poincare section and amplitude spectrum.
+    stroboscopic Poincare section and amplitude spectrum (log scale).
 
-    `strobe` is (k, 2): (displacement, velocity) at t = kT.
+    `strobe` is (k, 2): (displacement, velocity) at t = kT. The Poincare panel shares the
+    phase portrait's limits, so a period-1 orbit shows as one isolated point rather than an
+    autoscaled cloud of integration round-off; the orbit is drawn faintly behind it.
     """
     fx, ux = _display(displacement_unit)
     fv, uv = _display(velocity_unit)
-    fig = Figure(figsize=(11, 8))
+    if velocity_unit == "m/s":
+        fv, uv = 1e3, "mm/s"
+    t = np.asarray(t)
+    x = np.asarray(displacement) * fx
+    v = np.asarray(velocity) * fv
+    fig = Figure(figsize=(11, 7.5))
     axs = fig.subplots(2, 2)
     ax = axs[0, 0]
-    ax.plot(np.asarray(t) * 1e3, np.asarray(displacement) * fx, lw=0.8)
-    ax.set_xlabel("time [ms]")
-    ax.set_ylabel(f"displacement [{ux}]")
-    ax.set_title("Time history")
+    ax.plot((t - t[0]) * 1e3, x, lw=0.8, color="C0")
+    ax.set_xlabel("time after transient [ms]")
+    ax.set_ylabel(f"{name} [{ux}]")
+    ax.set_title("(a) time history")
     ax = axs[0, 1]
-    ax.plot(np.asarray(displacement) * fx, np.asarray(velocity) * fv, lw=0.5)
-    ax.set_xlabel(f"displacement [{ux}]")
+    ax.plot(x, v, lw=0.6, color="C1")
+    ax.set_xlabel(f"{name} [{ux}]")
     ax.set_ylabel(f"velocity [{uv}]")
-    ax.set_title("Phase portrait")
+    ax.set_title("(b) phase portrait")
+    xlim, ylim = ax.get_xlim(), ax.get_ylim()
     ax = axs[1, 0]
     s = np.asarray(strobe)
-    ax.plot(s[:, 0] * fx, s[:, 1] * fv, ".", ms=4, color="C3")
-    ax.set_xlabel(f"displacement [{ux}]")
-    ax.set_ylabel(f"velocity [{uv}]")
-    ax.set_title("Poincare section (t = kT)")
+    ax.plot(x, v, lw=0.4, color="0.85", zorder=0)
+    ax.plot(s[:, 0] * fx, s[:, 1] * fv, "o", ms=3.5, color="C3")
+    ax.set_xlim(xlim)
+    ax.set_ylim(ylim)
+    ax.set_xlabel(f"{name} at t = kT [{ux}]")
+    ax.set_ylabel(f"velocity at t = kT [{uv}]")
+    ax.set_title(f"(c) Poincare section ({len(s)} stroboscopic points)")
     ax = axs[1, 1]
-    ax.plot(np.asarray(freqs_hz), np.asarray(amplitude) * fx, lw=0.8)
+    f = np.asarray(freqs_hz)
+    a = np.asarray(amplitude) * fx
+    keep = f <= (max_frequency_hz if max_frequency_hz is not None else f.max())
+    top = max(float(a[keep].max()), 1e-300)
+    ax.semilogy(f[keep], np.maximum(a[keep], top * 1e-7), lw=0.9, color="C2")
+    ax.set_ylim(top * 1e-6, top * 3)
     ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel(f"amplitude [{ux}]")
-    ax.set_title("Amplitude spectrum (Hann window)")
-    for a in axs.ravel():
-        a.grid(alpha=0.3)
+    ax.set_ylabel(f"amplitude [{ux}] (log scale)")
+    ax.set_title(f"(d) amplitude spectrum ({window} window)")
+    for a_ in axs.ravel():
+        a_.grid(alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
     return fig

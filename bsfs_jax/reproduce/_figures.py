@@ -10,7 +10,7 @@ axes, as the paper does.
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..plotting._response import response_figure
+from ..plotting import response_figure
 from ._judge import hysteretic_jumps
 
 
