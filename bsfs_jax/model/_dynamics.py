@@ -13,38 +13,52 @@ from .. import physics
 from ._system import System
 
 
+def _internal_forces(system: System, x_b, x_s, x_n, v_b, v_s, v_n):
+    """Elastic + viscous forces of the three joints (bearing, screw, nut) [N], elementwise.
+
+    Written on scalars (broadcasting over any leading axes) so that the vector field, which
+    runs at every solver stage, is a handful of fused scalar operations.
+    """
+    c_b, c_s, c_n = system.damping[0], system.damping[1], system.damping[2]
+    f_b = physics.pair_force(x_b, system.bearing) + c_b * v_b
+    f_s = system.screw_stiffness * (x_s - x_b) + c_s * (v_s - v_b)
+    f_n = physics.pair_force(x_n - x_s, system.nut) + c_n * (v_n - v_s)
+    return f_b, f_s, f_n
+
+
+def _accelerations(system: System, x_b, x_s, x_n, v_b, v_s, v_n, force):
+    """Eq. 31 solved for (x_b'', x_s'', x_n'') [m/s^2], elementwise."""
+    f_b, f_s, f_n = _internal_forces(system, x_b, x_s, x_n, v_b, v_s, v_n)
+    m = system.mass
+    return (f_s - f_b) / m[0], (f_n - f_s) / m[1], (force - f_n) / m[2]
+
+
+def _split(a):
+    return a[..., 0], a[..., 1], a[..., 2]
+
+
 def joint_forces(system: System, x):
     """(F_b, F_s, F_n) [N] at displacements x = (x_b, x_s, x_n); broadcasts over leading axes."""
-    x_b, x_s, x_n = x[..., 0], x[..., 1], x[..., 2]
-    f_b = physics.pair_force(x_b, system.bearing)
-    f_s = system.screw_stiffness * (x_s - x_b)
-    f_n = physics.pair_force(x_n - x_s, system.nut)
-    return jnp.stack([f_b, f_s, f_n], axis=-1)
+    zero = jnp.zeros_like(x[..., 0])
+    return jnp.stack(_internal_forces(system, *_split(x), zero, zero, zero), axis=-1)
 
 
 def restoring_forces(system: System, x, v):
     """Internal forces on (m_b, m_s, m_n) [N] (elastic + viscous), the left sides of Eq. 31."""
-    f_b, f_s, f_n = jnp.moveaxis(joint_forces(system, x), -1, 0)
-    c_b, c_s, c_n = system.damping
-    v_b, v_s, v_n = v[..., 0], v[..., 1], v[..., 2]
-    d_b = c_b * v_b
-    d_s = c_s * (v_s - v_b)
-    d_n = c_n * (v_n - v_s)
-    return jnp.stack([f_b + d_b - f_s - d_s, f_s + d_s - f_n - d_n, f_n + d_n], axis=-1)
+    f_b, f_s, f_n = _internal_forces(system, *_split(x), *_split(v))
+    return jnp.stack([f_b - f_s, f_s - f_n, f_n], axis=-1)
 
 
 def accelerations(system: System, x, v, force):
     """x'' [m/s^2] of the three masses given the external nut force [N]."""
-    external = jnp.stack([jnp.zeros_like(force), jnp.zeros_like(force), force], axis=-1)
-    net = external - restoring_forces(system, x, v)
-    return net / jnp.broadcast_to(system.mass, net.shape)
+    return jnp.stack(_accelerations(system, *_split(x), *_split(v), force), axis=-1)
 
 
 def vector_field(t, y, args):
     """diffrax vector field f(t, y, args) with args = (system, forcing)."""
     system, forcing = args
-    x, v = y[:3], y[3:]
-    return jnp.concatenate([v, accelerations(system, x, v, forcing(t))])
+    acc = _accelerations(system, y[0], y[1], y[2], y[3], y[4], y[5], forcing(t))
+    return jnp.stack([y[3], y[4], y[5], *acc])
 
 
 def mechanical_energy(system: System, y):

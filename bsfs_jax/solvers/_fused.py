@@ -39,35 +39,27 @@ def _rms(x):
 
 
 def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
-    """(ys at ts, status, num_steps) with status codes of `_integrate` (0 = ok)."""
+    """(ys at ts, status, num_steps) with status codes of `_integrate` (0 = ok).
+
+    An outer `lax.scan` over the save times runs an inner `while_loop` of adaptive steps up
+    to each one (the last step clipped to land on it), so no large output buffer is carried
+    through the stepping loop.
+    """
     from ._integrate import MAX_STEPS, NON_FINITE, OK, SOLVER_FAILED
 
     ts = jnp.asarray(ts, dtype=float)
     y0 = jnp.asarray(y0, dtype=float)
     t0 = jnp.asarray(t0, dtype=float)
     t1 = jnp.asarray(t1, dtype=float)
-    n_save = ts.shape[0]
     eps = 64 * jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(t1), jnp.abs(t0))
     f0 = vector_field(t0, y0, args)
     scale0 = atol + rtol * jnp.abs(y0)
     d0, d1 = _rms(y0 / scale0), _rms(f0 / scale0)
     h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / jnp.where(d1 > 0, d1, 1.0))
     h0 = jnp.minimum(h0, t1 - t0)
-    # Save times at or before t0 take the initial state.
-    pre = ts <= t0
-    ys0 = jnp.where(pre[:, None], y0[None, :], jnp.nan)
-    idx0 = jnp.sum(pre)
 
-    def cond(s):
-        t, _, _, _, n, idx, _, status = s
-        return (t < t1) & (status == OK)
-
-    def body(s):
-        t, y, h, k1, n, idx, ys, status = s
-        t_next_save = ts[jnp.minimum(idx, n_save - 1)]
-        pending = (idx < n_save) & (t_next_save <= t1 + eps)
-        # A save time a few ulps past t1 (t1 and ts computed separately) counts as t1.
-        target = jnp.where(pending, jnp.minimum(t_next_save, t1), t1)
+    def step(s, target):
+        t, y, h, k1, n, status = s
         clipped = t + h >= target
         h_eff = jnp.where(clipped, target - t, h)
         ks = [k1]
@@ -87,17 +79,29 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
         h_new = jnp.where(accept & clipped, jnp.maximum(h_prop, jnp.minimum(h, h_prop * 10)),
                           h_prop)
         t_new = jnp.where(clipped, target, t + h_eff)
-        hit = accept & clipped & pending
-        ys = jnp.where(hit, ys.at[jnp.minimum(idx, n_save - 1)].set(y_new), ys)
-        idx = idx + hit.astype(idx.dtype)
         tiny = h_new < 1e-14 * jnp.maximum(jnp.abs(t), 1e-3)
         status = jnp.where(tiny, jnp.where(jnp.all(jnp.isfinite(y)), SOLVER_FAILED, NON_FINITE),
                            status)
-        status = jnp.where((n + 1 >= max_steps) & ~(accept & (t_new >= t1)), MAX_STEPS, status)
+        status = jnp.where((n + 1 >= max_steps) & ~(accept & (t_new >= target)), MAX_STEPS,
+                           status)
         return (jnp.where(accept, t_new, t), jnp.where(accept, y_new, y), h_new,
-                jnp.where(accept, ks[6], k1), n + 1, idx, ys, status)
+                jnp.where(accept, ks[6], k1), n + 1, status)
 
-    state = (t0, y0, h0, f0, jnp.asarray(0), idx0, ys0, jnp.asarray(OK))
-    _, _, _, _, n, idx, ys, status = jax.lax.while_loop(cond, body, state)
-    status = jnp.where((status == OK) & (idx < n_save), SOLVER_FAILED, status)
-    return ys, status, n
+    def advance(s, target):
+        """Step until t reaches `target` (or a failure)."""
+        return jax.lax.while_loop(lambda s: (s[0] < target) & (s[5] == OK),
+                                  lambda s: step(s, target), s)
+
+    def save(s, t_save):
+        # Save times before t0 take the initial state; one a few ulps past t1 counts as t1.
+        valid = t_save <= t1 + eps
+        target = jnp.clip(t_save, t0, t1)
+        s = advance(s, target)
+        y = jnp.where(valid & (s[5] == OK), s[1], jnp.nan)
+        return s, y
+
+    state = (t0, y0, h0, f0, jnp.asarray(0), jnp.asarray(OK))
+    state, ys = jax.lax.scan(save, state, ts)
+    state = advance(state, t1)
+    status = jnp.where((state[5] == OK) & jnp.any(ts > t1 + eps), SOLVER_FAILED, state[5])
+    return ys, status, state[4]
