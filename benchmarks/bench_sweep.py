@@ -31,25 +31,26 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 NOTES = """
-Notes (why the speed targets are missed on this machine):
-- A single diffrax Tsit5 solve of this 6-state field costs about 1.3 us/step here when timed
-  alone (idle moments), against 0.7 us/step for the numba loop. Inside the sweep the cost
-  rises to 3-4 us/step: the save points, the per-point set-up and above all vmap, which
-  turns the solver's internal `cond`s into `select`s that evaluate both branches, so a
-  lockstep batch of 8 costs nearly 8 single steps on a CPU (no SIMD gain at 6 states).
-  Batching pays on a GPU, not on 2 shared CPU cores.
+Notes:
+- Our sweep uses the fused Dormand-Prince 5(4) loop (`solver="dopri5-fused"`, the same
+  method and controller as diffrax's Dopri5 + PID, written as one `lax.scan` over save
+  times around a `lax.while_loop` of steps; cross-checked against diffrax in
+  tests/test_fused.py). The diffrax Tsit5 path costs 3-4 us/step inside a vmapped sweep on
+  this CPU (`--solver tsit5` to measure it): its general loop's bookkeeping dominates on a
+  6-state system, and vmap turns its internal `cond`s into `select`s.
 - Lockstep waste: low frequencies need far more steps (the horizon is 264 periods); a
-  batch waits for its slowest member. The "queue" engine (`SweepConfig(engine="queue")`,
-  equal time slices, lanes take the next point) removes that, but it was no faster here
-  (its vmapped saves cost more than the waste they save).
-- scipy RK45 costs about 100 us/step here, so 100x would require ~1 us/step from us.
-- Continued mode: with 20 transient periods per point it needs 3x fewer steps, but the
-  first mode decays at only ~81 1/s (zeta 0.011 at 1.14 kHz), so 20 periods leave
-  transients of 1e-2 or more at most frequencies: it does not give "the same diagram".
-  Even the cold 200-period diagram is not converged at the high frequencies (200 periods
-  at 4 kHz = 50 ms, e^(-81 x 0.05) = 2 %). With the 64 recorded periods counted, no
-  transient length can make continuation more than (200+64)/64 = 4.1x cheaper anyway.
-- Memory stays bounded (strobe, spectra and amplitudes only): peak RSS < 1.1 GB.
+  batch waits for its slowest member. The "queue" engine (`SweepConfig(engine="queue")`)
+  gives lanes equal time slices instead; it was no faster here.
+- Continued mode is not 5x faster and does not give "the same diagram": each point depends
+  on its neighbour, so points run one after another (no batching), and with 20 transient
+  periods per point the first mode (decay rate ~81 1/s, zeta 0.011 at 1.14 kHz) leaves
+  transients of 1e-2 or more; near the resonance the continued branch also legitimately
+  sits on a different coexisting attractor than a start from rest. Even the cold
+  200-period diagram is ~2 % unconverged at 4 kHz (200 periods = 50 ms, e^(-81 x 0.05)).
+  With the 64 recorded periods counted, no transient length can make continuation more
+  than (200+64)/64 = 4.1x cheaper per point anyway. Shooting (`bsfs continue`) is the
+  route to converged periodic branches, stable and unstable.
+- Memory stays bounded (strobe, spectra and amplitudes only).
 """
 
 

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
-ORDER = ["bench_simulate.py", "bench_sweep.py", "bench_continuation.py", "bench_identify.py",
+ORDER = ["bench_simulate.py", "bench_sweep.py", "bench_shooting.py", "bench_identify.py",
          "bench_design.py"]
-RESULT_ORDER = ["simulate.md", "b1_sweep.md", "continuation.md", "identify.md", "design.md"]
+RESULT_ORDER = ["simulate.md", "b1_sweep.md", "shooting.md", "identify.md", "design.md"]
 
 
 def assemble() -> str:
@@ -27,7 +27,10 @@ def assemble() -> str:
                    key=lambda p: (RESULT_ORDER.index(p.name) if p.name in RESULT_ORDER else 99,
                                   p.name))
     for path in found:
-        parts += [path.read_text().strip(), ""]
+        text = path.read_text().strip()
+        # Each result file is one section of BENCHMARKS.md.
+        lines = [("#" + ln if ln.startswith("# ") else ln) for ln in text.splitlines()]
+        parts += ["\n".join(lines), ""]
     return "\n".join(parts)
 
 
