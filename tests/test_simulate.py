@@ -258,7 +258,11 @@ def test_grad_of_vmap_and_vmap_of_grad(params, base_run):
 def test_jacfwd_forward_mode(params, base_run):
     fwd = lambda th: _run(params, th, _f(500.0), adjoint=dfx.ForwardMode())[0]
     jac = np.asarray(jax.jit(jax.jacfwd(fwd))(_f(THETA0)))
-    np.testing.assert_allclose(jac, base_run[1], rtol=1e-8)
+    # Both modes differentiate the same discretisation, so they agree to accumulated
+    # round-off over the ~1e4 steps: 1e-8-level (1.6e-8 seen after the equations of motion
+    # were regrouped). Agreement with the exact derivative is tested against finite
+    # differences above.
+    np.testing.assert_allclose(jac, base_run[1], rtol=1e-7)
 
 
 # --------------------------------------------------------------------------------------
