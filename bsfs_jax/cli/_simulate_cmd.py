@@ -1,5 +1,6 @@
 """`bsfs simulate`, `bsfs params` and `bsfs modes`."""
 
+import functools
 import sys
 import time
 
@@ -56,8 +57,9 @@ def _apply_common(params, args):
     return validate(params, source="command line")
 
 
+@functools.cache
 def _report_fn():
-    """One jitted function for everything reported besides the trajectory (cached)."""
+    """One jitted function for everything reported besides the trajectory (built once)."""
     import equinox as eqx
 
     from ..model import build_system
