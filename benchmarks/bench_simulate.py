@@ -28,45 +28,11 @@ from scipy.integrate import solve_ivp
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _machine import machine_info, machine_line  # noqa: E402
+from scipy_model import bsfs_coefficients, rhs  # noqa: E402
 
 import bsfs_jax as bsfs  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-
-
-def numpy_rhs(system):
-    """Eq. 31 in plain numpy from the same coefficients (the peer implementation)."""
-    m = np.asarray(system.mass)
-    c_b, c_s, c_n = np.asarray(system.damping)
-    k_s = float(system.screw_stiffness)
-
-    def pair(p):
-        return dict(z=float(p.balls) * float(p.hertz_k) ** -1.5 * float(p.cos_helix),
-                    asin=float(p.a) * np.sin(float(p.contact_angle)),
-                    b=float(p.a) * np.cos(float(p.contact_angle)), a0=float(p.a0),
-                    d=float(p.offset), ch=float(p.cos_helix))
-
-    nut, brg = pair(system.nut), pair(system.bearing)
-
-    def force(u, p):
-        out = 0.0
-        for s in (1.0, -1.0):
-            a = p["asin"] + s * u / p["ch"]
-            length = np.sqrt(a * a + p["b"] ** 2)
-            delta = length - p["a0"] - p["d"]
-            if delta > 0:
-                out += s * p["z"] * delta**1.5 * a / length
-        return out
-
-    def rhs(t, y, amp, omega):
-        x_b, x_s, x_n, v_b, v_s, v_n = y
-        f_b = force(x_b, brg)
-        f_s = k_s * (x_s - x_b) + c_s * (v_s - v_b)
-        f_n = force(x_n - x_s, nut) + c_n * (v_n - v_s)
-        return [v_b, v_s, v_n, (-f_b - c_b * v_b + f_s) / m[0], (-f_s + f_n) / m[1],
-                (amp * np.sin(omega * t) - f_n) / m[2]]
-
-    return rhs
 
 
 def bench_s1(repeats: int, periods: int) -> dict:
@@ -90,11 +56,12 @@ def bench_s1(repeats: int, periods: int) -> dict:
         timings[solver] = (first, statistics.median(times), times, int(traj.num_steps))
     first, jax_s, times, _ = timings["tsit5"]
     fused_first, fused_s, fused_times, fused_steps = timings["dopri5-fused"]
-    rhs = numpy_rhs(system)
+    # The same model in plain numpy/scipy (benchmarks/scipy_model.py, shared with B1).
+    coeffs = bsfs_coefficients(params)
     t_eval = np.asarray(traj.t)
     t0 = time.perf_counter()
     sol = solve_ivp(rhs, (0.0, t_eval[-1]), np.zeros(6), method="RK45", t_eval=t_eval,
-                    rtol=1e-8, atol=1e-12, args=(force, 2 * np.pi * freq))
+                    rtol=1e-8, atol=1e-12, args=(coeffs, freq, force))
     scipy_s = time.perf_counter() - t0
     diff = np.max(np.abs(sol.y[2] - np.asarray(traj.displacement[:, 2])))
     amp = float(traj.amplitude())
