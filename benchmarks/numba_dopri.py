@@ -17,7 +17,6 @@ import math
 
 import numba
 import numpy as np
-
 from scipy_model import BEAR, KS, NUT
 
 # Dormand-Prince coefficients.

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
-ORDER = ["bench_simulate.py", "bench_sweep.py", "bench_shooting.py", "bench_identify.py",
+ORDER = ["bench_simulate.py", "bench_sweep.py", "bench_orbits.py", "bench_identify.py",
          "bench_design.py"]
-RESULT_ORDER = ["simulate.md", "b1_sweep.md", "shooting.md", "identify.md", "design.md"]
+RESULT_ORDER = ["simulate.md", "b1_sweep.md", "orbits.md", "identify.md", "design.md"]
 
 
 def assemble() -> str:

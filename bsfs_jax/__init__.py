@@ -8,6 +8,12 @@ at your entry point: `jax.config.update("jax_enable_x64", True)`).
 
 import importlib.metadata
 
+from .machine import Modes as Modes
+from .machine import Trajectory as Trajectory
+from .machine import equilibrium as equilibrium
+from .machine import linear_frf as linear_frf
+from .machine import modes as modes
+from .machine import simulate as simulate
 from .model import HarmonicForcing as HarmonicForcing
 from .model import Sinusoid as Sinusoid
 from .model import System as System
@@ -22,15 +28,10 @@ from .params import load_params as load_params
 from .params import params_to_toml as params_to_toml
 from .params import preset as preset
 from .params import save_params as save_params
-from .solvers import Modes as Modes
+from .solvers import RESULTS as RESULTS
 from .solvers import SolverError as SolverError
 from .solvers import SolverSettings as SolverSettings
-from .solvers import Trajectory as Trajectory
-from .solvers import equilibrium as equilibrium
 from .solvers import integrate as integrate
-from .solvers import linear_frf as linear_frf
-from .solvers import modes as modes
-from .solvers import simulate as simulate
 
 try:
     __version__ = importlib.metadata.version("bsfs")

@@ -12,33 +12,33 @@ Public API (the package uses only the public API of `bsfs_jax`):
 - bundled data: `bundled_records`, `DATA_DIR`.
 """
 
-from ._records import Record as Record
-from ._records import RecordError as RecordError
-from ._records import load_record as load_record
-from ._records import load_records as load_records
-from ._records import write_record_csv as write_record_csv
-from ._records import write_record_uff as write_record_uff
-from ._synth import TestEffects as TestEffects
-from ._synth import synthesize as synthesize
-from ._measurement import HarmonicData as HarmonicData
-from ._measurement import harmonic_analysis as harmonic_analysis
 from ._fit import DEFAULT_FIT as DEFAULT_FIT
 from ._fit import FIT_PARAMETERS as FIT_PARAMETERS
 from ._fit import FitResult as FitResult
 from ._fit import Problem as Problem
 from ._fit import fit as fit
 from ._fit import parse_fit as parse_fit
-from ._uncertainty import Uncertainty as Uncertainty
-from ._uncertainty import uncertainty as uncertainty
-from ._plan import TestPlan as TestPlan
+from ._measurement import HarmonicData as HarmonicData
+from ._measurement import harmonic_analysis as harmonic_analysis
 from ._plan import PlannedRecord as PlannedRecord
+from ._plan import TestPlan as TestPlan
 from ._plan import candidate_plans as candidate_plans
 from ._plan import fisher_std as fisher_std
 from ._plan import plan_from_records as plan_from_records
 from ._plan import plan_test as plan_test
+from ._records import Record as Record
+from ._records import RecordError as RecordError
+from ._records import load_record as load_record
+from ._records import load_records as load_records
+from ._records import write_record_csv as write_record_csv
+from ._records import write_record_uff as write_record_uff
 from ._report import DATA_DIR as DATA_DIR
 from ._report import IdentificationResult as IdentificationResult
 from ._report import bundled_records as bundled_records
 from ._report import identify as identify
 from ._report import report_dict as report_dict
 from ._report import write_identified as write_identified
+from ._synth import TestEffects as TestEffects
+from ._synth import synthesize as synthesize
+from ._uncertainty import Uncertainty as Uncertainty
+from ._uncertainty import uncertainty as uncertainty

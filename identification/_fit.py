@@ -24,8 +24,7 @@ import optimistix as optx
 import bsfs_jax
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
-from ._measurement import (HarmonicData, linear_acceleration, nonlinear_acceleration,
-                           receptance)
+from ._measurement import HarmonicData, linear_acceleration, nonlinear_acceleration, receptance
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,16 +20,16 @@ and its output is the worktable acceleration x_n''. Two steady-state models:
   nonlinear steady state to about 1e-5 relative (measured, see the report), far below the
   noise of the coefficients (about 2e-4 relative for 2 s at 35 dB).
 - `nonlinear`: the periodic orbit of the full Eq. 31 under the measured force harmonics,
-  found by Newton shooting on the period map (started from the linear steady state, 4
-  steps), then one period sampled at 64 points and Fourier analysed. Needed near the
-  resonance and when the force reaches the joint nonlinearity (the 3000 N records): at
-  1150 Hz / 100 N the linear model is 3 % off, at 3000 N / 150 Hz 2 %. Shooting agrees with
-  simulate-and-discard-transient (`nonlinear_acceleration_transient`) to 1e-11 and costs
-  about one period of integration per Newton step, whereas discarding the transient near
-  the lightly damped resonance (zeta ~ 1 %, decay time ~12 ms) needs >100 periods.
+  from the package's orbit engine (shooting, started from the linear steady state), one
+  period sampled at 64 points and Fourier analysed.
+  Needed near the resonance and when the force reaches the joint nonlinearity (the
+  3000 N records): at 1150 Hz / 100 N the linear model is 3 % off, at 3000 N / 150 Hz 2 %.
+  It agrees with simulate-and-discard-transient (`nonlinear_acceleration_transient`; tested)
+  whereas discarding the transient near the lightly damped resonance (zeta ~ 1 %, decay
+  time ~12 ms) needs >100 periods.
 
 Choice per record (`Problem(model="auto")`): the linear model where the predicted joint
-amplitude is below 10 % of the preload deformation, shooting otherwise. Comparing in the
+amplitude is below 10 % of the preload deformation, the orbit engine otherwise. Comparing in the
 harmonic domain is equivalent to comparing steady-state time samples (Parseval) once the
 record is stationary, but reduces 20 000 samples to 6 numbers with known standard errors
 and needs the model's steady state for one period only.
@@ -45,8 +45,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import bsfs_jax
+from bsfs_jax.machine import BSFS_SCALE, Horizon, simulate_core
 from bsfs_jax.model import accelerations, restoring_forces
-from bsfs_jax.solvers import Horizon, simulate_core
+from bsfs_jax.solvers import ImplicitForward, Shooting, periodic_orbit
 
 from ._records import Record
 
@@ -204,68 +205,37 @@ def linear_initial_state(system, frequency_hz, force_coeffs):
     return jnp.concatenate([jnp.sum(jnp.real(x), axis=0), jnp.sum(jnp.real(1j * w * x), axis=0)])
 
 
-_STATE_SCALE = (1e-6, 1e-6, 1e-6, 1e-3, 1e-3, 1e-3)  # shooting in um and mm/s
-SHOOTING_SETTINGS = bsfs_jax.SolverSettings(rtol=1e-8, atol=1e-14, max_steps=100_000)
+#: ODE settings of the nonlinear model's shooting (scaled variables: atol relative to
+#: 1 um and 1 cm/s): far below the records' noise, cheaper than the engine's default.
+NONLINEAR_SETTINGS = bsfs_jax.SolverSettings(rtol=1e-9, atol=1e-11, solver="tsit5")
 
 
-def _period_flow(y0, system, forcing, settings):
-    t_end = forcing.period
-    res = bsfs_jax.integrate(bsfs_jax.vector_field, y0, (system, forcing), 0.0, t_end,
-                             jnp.reshape(t_end, (1,)), settings, adjoint=dfx.ForwardMode())
-    return res.ys[-1], res.status
-
-
-def periodic_state(system, forcing, y_guess, settings=SHOOTING_SETTINGS,
-                   iterations: int = 4, tol: float = 1e-5):
-    """(state at t = 0 of the T-periodic orbit, ok flag) by Newton shooting from `y_guess`.
-
-    A fixed number of Newton steps on z = y / scale (scale = 1 um, 1 mm/s), started from
-    the linear steady state, which is within a few per cent of the orbit for the records
-    we fit, so 4 steps converge quadratically to round-off. The Newton matrix
-    d Phi/d z - I comes from forward-mode differentiation through the solver and is held
-    out of the parameter derivative (stop_gradient): the tangent then follows the chord
-    iteration z' <- z' - J^-1 (g_z z' + g_p), which converges to the implicit-function
-    derivative -g_z^-1 g_p as fast as the orbit itself. Everything stays finite-or-NaN
-    (no raising inside a jacfwd), so the optimiser can reject a bad trial point.
-    `ok` is False when the final residual exceeds `tol` (in um and mm/s).
-    """
-    scale = jnp.asarray(_STATE_SCALE)
-
-    def g(z, sys_, forc):
-        y1, _ = _period_flow(z * scale, sys_, forc, settings)
-        return y1 / scale - z
-
-    def step(z, _):
-        frozen = jax.lax.stop_gradient((z, system, forcing))
-        jac = jax.jacfwd(g)(*frozen)
-        return z - jnp.linalg.solve(jac, g(z, system, forcing)), None
-
-    z, _ = jax.lax.scan(step, y_guess / scale, None, length=iterations)
-    resid = jnp.max(jnp.abs(g(z, system, forcing)))
-    return z * scale, resid < tol
-
-
-def nonlinear_acceleration(system, frequency_hz, force_coeffs, *, settings=SHOOTING_SETTINGS):
+def nonlinear_acceleration(system, frequency_hz, force_coeffs):
     """(acceleration harmonics (H,), ok flag) of the nonlinear periodic steady state.
 
-    The periodic orbit is found by shooting from the linear steady state (two or three
-    Newton steps), then one period is sampled at 64 points and Fourier analysed. Forward-
-    mode differentiable (diffrax `ForwardMode`, optimistix implicit adjoint).
+    The periodic orbit under the measured force harmonics comes from the orbit engine
+    (`bsfs_jax.solvers.periodic_orbit`, single shooting, started from the linear steady
+    state); one period is sampled at 64 points and Fourier analysed. Shooting rather than
+    harmonic balance: at the 3000 N records a joint loses contact, its force is only C^1,
+    and harmonic balance converges slowly (1.4e-5 relative error with 64 harmonics, against
+    1e-10 for shooting). Differentiable in forward mode by the implicit function theorem
+    (`ImplicitForward`), as the Levenberg-Marquardt Jacobian needs.
     """
     n_harm = force_coeffs.shape[-1]
     forcing = _forcing(frequency_hz, force_coeffs)
-    y_lin = linear_initial_state(system, frequency_hz, force_coeffs)
-    y0, ok = periodic_state(system, forcing, y_lin, settings)
-    period = forcing.period
-    ts = period * jnp.arange(NONLINEAR_SAMPLES + 1) / NONLINEAR_SAMPLES
-    res = bsfs_jax.integrate(bsfs_jax.vector_field, y0, (system, forcing), 0.0, period, ts,
-                             settings, adjoint=dfx.ForwardMode())
-    x, v = res.ys[:-1, :3], res.ys[:-1, 3:]
-    a = accelerations(system, x, v, jax.vmap(forcing)(ts[:-1]))[:, 2]
+    args = (system, forcing)
+    y_lin = jax.lax.stop_gradient(linear_initial_state(system, frequency_hz, force_coeffs))
+    method = Shooting(settings=NONLINEAR_SETTINGS, samples_per_period=NONLINEAR_SAMPLES)
+    orbit = periodic_orbit(bsfs_jax.vector_field, y_lin, args, forcing.period, method=method,
+                           scale=jnp.asarray(BSFS_SCALE), adjoint=ImplicitForward(),
+                           throw=False)
+    ts, ys = method.samples(bsfs_jax.vector_field, orbit.unknowns, args, forcing.period, 1,
+                            orbit.scale, dfx.ForwardMode())
+    a = accelerations(system, ys[:, :3], ys[:, 3:], jax.vmap(forcing)(ts))[:, 2]
     n = jnp.arange(NONLINEAR_SAMPLES)
     k = jnp.arange(1, n_harm + 1)
     basis = jnp.exp(-2j * jnp.pi * k[:, None] * n[None, :] / NONLINEAR_SAMPLES)
-    return (2.0 / NONLINEAR_SAMPLES) * (basis @ a), ok & (res.status == 0)
+    return (2.0 / NONLINEAR_SAMPLES) * (basis @ a), orbit.converged
 
 
 def nonlinear_acceleration_transient(system, frequency_hz, force_coeffs, *,
@@ -284,7 +254,7 @@ def nonlinear_acceleration_transient(system, frequency_hz, force_coeffs, *,
     n = jnp.arange(NONLINEAR_SAMPLES)
     k = jnp.arange(1, n_harm + 1)
     basis = jnp.exp(-2j * jnp.pi * k[:, None] * n[None, :] / NONLINEAR_SAMPLES)
-    return (2.0 / NONLINEAR_SAMPLES) * (basis @ a), traj.status == 0
+    return (2.0 / NONLINEAR_SAMPLES) * (basis @ a), traj.ok
 
 
 def waveform(coeffs, frequency_hz, t):

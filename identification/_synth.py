@@ -79,10 +79,10 @@ def _antialias(x, fs_high, cutoff):
 @eqx.filter_jit
 def _respond(system, forcing, ts, settings):
     res = bsfs_jax.integrate(bsfs_jax.vector_field, jnp.zeros(6), (system, forcing), 0.0,
-                             ts[-1], ts, settings)
+                             ts[-1], ts, settings, throw=False)
     x, v = res.ys[:, :3], res.ys[:, 3:]
     force = jax.vmap(forcing)(ts)
-    return force, accelerations(system, x, v, force)[:, 2], res.status
+    return force, accelerations(system, x, v, force)[:, 2], res.result
 
 
 def synthesize(params, frequency_hz: float, force_n: float, *, duration_s: float = 2.0,
@@ -106,10 +106,10 @@ def synthesize(params, frequency_hz: float, force_n: float, *, duration_s: float
         effects.drift_frequency_hz, rng.uniform(0, 2 * np.pi))))
     settings = bsfs_jax.SolverSettings(rtol=rtol, atol=atol, max_steps=4_000_000)
     system = bsfs_jax.build_system(params)
-    force, acc, status = _respond(system, forcing, ts, settings)
-    from bsfs_jax.solvers import check_status
+    force, acc, result = _respond(system, forcing, ts, settings)
+    from bsfs_jax.solvers import check_result
 
-    check_status(status, settings, f"synthetic record {f:g} Hz, {force_n:g} N")
+    check_result(result, settings, f"synthetic record {f:g} Hz, {force_n:g} N")
     force, acc = np.asarray(force), np.asarray(acc)
     cutoff = 0.4 * sample_rate_hz
     force = _antialias(force, fs_hi, cutoff)[n_settle::effects.oversample]

@@ -15,7 +15,7 @@ from bsfs_jax.analysis import (
     stroboscopic,
     sweep,
 )
-from bsfs_jax.solvers import SolverSettings
+from bsfs_jax.solvers import RESULTS, SolverSettings, result_ok
 from tests.textbook import LORENZ_CLASSIC, LORENZ_LYAPUNOV, duffing, linear_oscillator, lorenz
 
 # ---------------------------------------------------------------------------------------
@@ -115,7 +115,8 @@ def test_chaotic_maps(system):
 def test_failed_run_classified_failed():
     strobe = np.full((10, 2), np.nan)
     assert classify_motion(strobe).kind == "failed"
-    assert classify_motion(np.zeros((10, 2)), status=1).kind == "failed"
+    assert classify_motion(np.zeros((10, 2)), result=RESULTS.max_steps_reached).kind == "failed"
+    assert classify_motion(np.zeros((10, 2)), result=RESULTS.successful).kind == "periodic"
 
 
 def test_detect_jumps_finds_the_jump_and_not_the_smooth_flank():
@@ -138,7 +139,7 @@ def test_lorenz_largest_lyapunov_exponent():
     res = largest_lyapunov(lorenz, jnp.array([1.0, 1.0, 1.0]), jnp.array(LORENZ_CLASSIC),
                            interval=1.0, n_intervals=2000, transient_intervals=20,
                            settings=SolverSettings(rtol=1e-8, atol=1e-10))
-    assert int(res.status) == 0
+    assert bool(res.result == RESULTS.successful) and bool(res.ok)
     assert float(res.exponent) == pytest.approx(LORENZ_LYAPUNOV, rel=0.03)
 
 
@@ -173,7 +174,7 @@ def test_duffing_period_doubling_route():
     assert [m.label for m in motions] == ["period-1", "period-2", "period-4", "chaotic"]
     lam = res.lyapunov_per_period()[0]
     assert np.all(lam[:3] < 0) and lam[3] > 0.05
-    assert np.all(res.status == 0)
+    assert np.all(result_ok(res.result))
     # Period-2 shows a subharmonic line at half the forcing frequency; period-1 does not.
     half = np.argmin(abs(res.spectrum_order - 0.5))
     one = np.argmin(abs(res.spectrum_order - 1.0))

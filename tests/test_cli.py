@@ -33,7 +33,8 @@ def test_simulate_writes_self_describing_outputs(sim_dir):
     lines = (sim_dir / "timeseries.csv").read_text().splitlines()
     header = [ln for ln in lines if ln.startswith("#")]
     assert any("frequency_hz = 500.0" in ln for ln in header)
-    data = np.loadtxt(sim_dir / "timeseries.csv", delimiter=",", comments="#", skiprows=len(header) + 1)
+    data = np.loadtxt(sim_dir / "timeseries.csv", delimiter=",", comments="#",
+                      skiprows=len(header) + 1)
     assert data.shape == (4 * 32 + 1, 14)
     amp = 0.5 * np.ptp(data[:, 3]) * 1e6
     assert amp == pytest.approx(summary["amplitude_um"], rel=1e-9)

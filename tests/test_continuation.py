@@ -1,5 +1,7 @@
-"""Pseudo-arclength continuation of periodic orbits: Duffing folds against harmonic balance,
-a period doubling against a brute-force sweep, the BSFS against `simulate`, and the CLI."""
+"""Pseudo-arclength continuation of periodic orbits on the engine (shooting and harmonic
+balance): Duffing folds against the closed-form one-term harmonic balance and against each
+other, a period doubling against a brute-force sweep, the BSFS against `simulate`, the
+FRC peak, trimming, and the CLI."""
 
 import json
 
@@ -9,17 +11,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from bsfs_jax.machine import bsfs_family, simulate
 from bsfs_jax.params import preset
 from bsfs_jax.solvers import (
+    HarmonicBalance,
     SolverSettings,
-    bsfs_family,
     continue_orbits,
     integrate,
-    shoot,
-    simulate,
+    periodic_orbit,
 )
 
 from .textbook import duffing
+
 
 class DuffingFamily(eqx.Module):
     """Duffing oscillator along a line in its parameters: args(p) = base + p * direction.
@@ -85,6 +88,29 @@ def duffing_frc():
                            p_scale=1.0, amplitude_index=0)
 
 
+@pytest.fixture(scope="module")
+def duffing_frc_hb():
+    family = frequency_family(**HARDENING)
+    return continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                           vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                           p_scale=1.0, amplitude_index=0,
+                           method=HarmonicBalance(harmonics=4, error_tol=1e-9))
+
+
+def test_harmonic_balance_folds_match_shooting_folds(duffing_frc, duffing_frc_hb):
+    hb, sh = duffing_frc_hb, duffing_frc
+    assert hb.info["method"] == "harmonic balance" and sh.info["method"] == "shooting"
+    # The error estimate chose the harmonic count (doubling from 4) and holds everywhere.
+    assert np.all(hb.error_estimates <= 1e-9) and hb.method.harmonics >= 8
+    folds_hb = sorted(b.p for b in hb.bifurcations if b.kind == "fold")
+    folds_sh = sorted(b.p for b in sh.bifurcations if b.kind == "fold")
+    assert len(folds_hb) == len(folds_sh) == 2
+    np.testing.assert_allclose(folds_hb, folds_sh, rtol=1e-7)
+    # The same peak, located along the branch (dA/ds = 0) by both methods.
+    assert hb.peak.amplitude == pytest.approx(sh.peak.amplitude, rel=1e-7)
+    assert hb.peak.located and sh.peak.located
+
+
 def test_duffing_folds_match_harmonic_balance(duffing_frc):
     branch = duffing_frc
     w_hb, a_hb = harmonic_balance_curve(**HARDENING)
@@ -93,7 +119,8 @@ def test_duffing_folds_match_harmonic_balance(duffing_frc):
     folds = sorted((b for b in branch.bifurcations if b.kind == "fold"), key=lambda b: b.p)
     assert len(folds) == 2, [b.kind for b in branch.bifurcations]
     assert branch.info["stop_reason"] == "left the parameter interval"
-    assert branch.p[-1] > 1.3 and branch.p[0] == pytest.approx(0.8)
+    # Trimmed: the branch ends on the interval's bound, not past it.
+    assert branch.p[-1] == pytest.approx(1.3, abs=1e-12) and branch.p[0] == pytest.approx(0.8)
     for fold, (w_fold, a_fold) in zip(folds, hb_folds):
         assert fold.located
         # 1-term HB neglects the 3rd harmonic, of relative size ~ beta A^2 / (32 w^2)
@@ -102,8 +129,11 @@ def test_duffing_folds_match_harmonic_balance(duffing_frc):
         assert fold.amplitude == pytest.approx(a_fold, rel=2e-2)
         # At a fold one Floquet multiplier is +1.
         assert np.min(np.abs(fold.multipliers - 1.0)) < 1e-4
-    # Peak amplitude (sampled branch maximum) within 1.5 % of HB's.
-    assert np.max(branch.amplitude) == pytest.approx(np.max(a_hb), rel=1.5e-2)
+    # Peak amplitude within 1.5 % of one-term HB's; the located peak is the branch's
+    # largest amplitude, with dA/ds driven to zero between two branch points.
+    assert branch.peak.amplitude == pytest.approx(np.max(a_hb), rel=1.5e-2)
+    assert branch.peak.amplitude >= np.max(branch.amplitude) - 1e-12
+    assert branch.peak.located and abs(branch.peak.slope) < 1e-6
 
 
 def test_duffing_middle_branch_is_unstable(duffing_frc):
@@ -175,7 +205,8 @@ def test_duffing_period_doubling_matches_brute_force():
     settled = ys[-1, -1]  # gamma = 0.28, after 604 periods
     assert np.max(np.abs(xs[-1, 2:] - xs[-1, :-2])) < 1e-6  # period 2, not 4, at 0.28
     args_28, _ = family(gammas[-1])
-    orbit2 = shoot(duffing, settled + 0.01, args_28, period, n_periods=2, scale=jnp.ones(2))
+    orbit2 = periodic_orbit(duffing, settled + 0.01, args_28, period, n_periods=2,
+                            scale=jnp.ones(2))
     np.testing.assert_allclose(orbit2.state, settled, atol=1e-6)
     assert bool(orbit2.stable) and orbit2.n_periods == 2
     # A genuine period-2 orbit: one period does not map it onto itself.
@@ -191,7 +222,7 @@ def bsfs_branch():
     family = bsfs_family(params, BSFS_FORCE_N)
     # Steady state of `simulate` from rest: |mu| ~ 0.92 per period, 0.92^150 ~ 4e-6.
     traj = simulate(params, frequency_hz=1100.0, force_n=BSFS_FORCE_N, transient_periods=150,
-                    periods=1, samples_per_period=64)
+                    periods=1, samples_per_period=512)
     branch = continue_orbits(family, traj.final_state, 1100.0, 1130.0, ds=0.1,
                              amplitude_index=2)
     return traj, branch
@@ -199,13 +230,14 @@ def bsfs_branch():
 
 def test_bsfs_branch_matches_simulation(bsfs_branch):
     traj, branch = bsfs_branch
-    assert len(branch) >= 3 and branch.p[-1] > 1130.0
+    assert len(branch) >= 3 and branch.p[-1] == pytest.approx(1130.0)
     assert branch.p[0] == pytest.approx(1100.0)
     assert np.all(branch.stable)  # the rising resonant branch below the fold (~1300 Hz)
     assert np.all(np.diff(branch.amplitude) > 0)  # amplitude grows towards resonance
     assert np.all(np.diff(branch.p) > 0)
     # The orbit found at 1100 Hz is the attractor `simulate` settles on: same state at
-    # t = kT and the same half peak-to-peak nut amplitude (both on 64 samples per period).
+    # t = kT and the same half peak-to-peak nut amplitude (the simulation's 512 samples per
+    # period resolve the extremes to ~2e-5; the branch refines them between samples).
     amp_sim = float(traj.amplitude(2))
     assert amp_sim == pytest.approx(float(branch.amplitude[0]), rel=1e-4)
     scale = np.abs(branch.states[0]).max()
@@ -220,7 +252,7 @@ def test_cli_continue(tmp_path, bsfs_branch):
     out = tmp_path / "cont"
     code = main(["continue", "--start", "1100", "--stop", "1115", "--force",
                  str(BSFS_FORCE_N), "--ds", "0.1", "--transient-periods", "150",
-                 "--out", str(out)])
+                 "--method", "shooting", "--no-progress", "--out", str(out)])
     assert code == 0
     for name in ("frc.png", "branch.csv", "bifurcations.json", "summary.json"):
         assert (out / name).stat().st_size > 0, name
@@ -233,9 +265,10 @@ def test_cli_continue(tmp_path, bsfs_branch):
     # Same guess and settings as the library call: the rows agree.
     assert data[0, 0] == pytest.approx(1100.0)
     assert data[0, 1] == pytest.approx(branch.amplitude[0] * 1e6, rel=1e-6)
-    assert data[-1, 0] > 1115.0
+    assert data[-1, 0] == pytest.approx(1115.0)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["points"] == len(data) and summary["force_n"] == BSFS_FORCE_N
+    assert summary["method"] == "shooting" and summary["max_residual"] < 1e-6
     bifs = json.loads((out / "bifurcations.json").read_text())
     assert isinstance(bifs, list)
 

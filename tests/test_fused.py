@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 import bsfs_jax as bsfs
-from bsfs_jax.solvers import SolverSettings, integrate
-from bsfs_jax.solvers._integrate import MAX_STEPS, OK
+from bsfs_jax.solvers import RESULTS, SolverError, SolverSettings, integrate
 
 
 def _duffing(t, y, args):
@@ -25,7 +24,7 @@ def test_fused_matches_diffrax_on_duffing():
     ref = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts, tight)
     fused = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts,
                       SolverSettings(rtol=1e-11, atol=1e-13, solver="dopri5-fused"))
-    assert int(fused.status) == OK
+    assert bool(fused.result == RESULTS.successful) and bool(fused.ok)
     np.testing.assert_allclose(fused.ys, ref.ys, rtol=0, atol=1e-8)
     # save times are hit exactly, including t0
     np.testing.assert_allclose(fused.ys[0], [0.1, 0.0])
@@ -61,9 +60,23 @@ def test_fused_forward_mode_and_vmap():
 def test_fused_reports_max_steps_and_nan():
     ts = jnp.linspace(0.0, 30.0, 4)
     res = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts,
-                    SolverSettings(max_steps=10, solver="dopri5-fused"))
-    assert int(res.status) == MAX_STEPS
+                    SolverSettings(max_steps=10, solver="dopri5-fused"), throw=False)
+    assert bool(res.result == RESULTS.max_steps_reached) and not bool(res.ok)
     assert bool(jnp.all(jnp.isnan(res.ys)))
     ref = integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts,
-                    SolverSettings(max_steps=10, solver="tsit5"))
-    assert int(ref.status) == MAX_STEPS
+                    SolverSettings(max_steps=10, solver="tsit5"), throw=False)
+    assert bool(ref.result == RESULTS.max_steps_reached)
+
+
+@pytest.mark.parametrize("solver", ["dopri5-fused", "tsit5"])
+def test_concrete_failure_raises_with_cause_and_settings(solver):
+    """throw=True (the default) raises on a concrete failure; under jit nothing is raised."""
+    ts = jnp.linspace(0.0, 30.0, 4)
+    settings = SolverSettings(max_steps=10, solver=solver)
+    with pytest.raises(SolverError, match=f"maximum number of solver steps.*solver={solver}"):
+        integrate(_duffing, jnp.array([0.1, 0.0]), ARGS, 0.0, 30.0, ts, settings)
+    with pytest.raises(SolverError, match="not finite"):
+        integrate(_duffing, jnp.array([jnp.nan, 0.0]), ARGS, 0.0, 30.0, ts,
+                  SolverSettings(max_steps=100, solver=solver))
+    traced = jax.jit(lambda y0: integrate(_duffing, y0, ARGS, 0.0, 30.0, ts, settings))
+    assert bool(traced(jnp.array([0.1, 0.0])).result == RESULTS.max_steps_reached)

@@ -13,8 +13,12 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._measurement import (harmonic_analysis, nonlinear_acceleration,
-                                         nonlinear_acceleration_transient, receptance)
+from identification._measurement import (
+    harmonic_analysis,
+    nonlinear_acceleration,
+    nonlinear_acceleration_transient,
+    receptance,
+)
 
 TRUTH = idn.DATA_DIR / "truth.toml"
 TRUTH_VALUES = dict(nut_k=4.35e-7, bearing_k=2.13e-7, screw_k=250.0, c_b=2000.0, c_s=600.0,

@@ -173,7 +173,7 @@ def test_backbone_of_symmetric_pair():
         return integrate(_unit_pair_field, y0, pair, 0.0, t_end, ts, settings)
 
     res = jax.vmap(run)(y0)
-    assert np.all(np.asarray(res.status) == 0)
+    assert np.all(np.asarray(res.ok))
     for i, (amp, expected) in enumerate(BACKBONE):
         ys = np.asarray(res.ys[i])
         ratio = t0 / measured_period(np.asarray(ts), ys[:, 0], ys[:, 1])
@@ -224,7 +224,7 @@ def test_backbone_of_one_sided_contact():
     settings = SolverSettings(rtol=1e-12, atol=1e-14, max_steps=100_000)
     res = jax.vmap(jax.jit(lambda y: integrate(_one_sided_field, y, pair, 0.0, t_end, ts,
                                                settings)))(y0)
-    assert np.all(np.asarray(res.status) == 0)
+    assert np.all(np.asarray(res.ok))
     ratios = []
     for i in range(2):
         ys = np.asarray(res.ys[i])

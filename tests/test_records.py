@@ -4,8 +4,13 @@ file, the line and what to do (no JAX needed)."""
 import numpy as np
 import pytest
 
-from identification import RecordError, load_record, load_records, write_record_csv, \
-    write_record_uff
+from identification import (
+    RecordError,
+    load_record,
+    load_records,
+    write_record_csv,
+    write_record_uff,
+)
 from identification._records import format_record_csv
 
 FS = 10240.0

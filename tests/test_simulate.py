@@ -17,7 +17,8 @@ import pytest
 
 import bsfs_jax as bsfs
 from bsfs_jax import physics
-from bsfs_jax.solvers import Horizon, SolverError, SolverSettings, simulate_core
+from bsfs_jax.machine import Horizon, simulate_core
+from bsfs_jax.solvers import RESULTS, SolverError, SolverSettings, result_ok
 
 from .helpers import finite_difference, relative_error
 from .reference_model import ReferenceBSFS
@@ -166,14 +167,14 @@ def _with(params, theta):
 
 
 def _run(params, theta, frequency, adjoint=None):
-    """(J, status, min contact deformation): J = mean(x_n^2) [um^2] over 2 periods."""
+    """(J, result, min contact deformation): J = mean(x_n^2) [um^2] over 2 periods."""
     p = _with(params, theta)
     traj = simulate_core(p, bsfs.Sinusoid(FORCE, frequency), jnp.zeros(6), GRAD_HORIZON,
                          GRAD_SETTINGS, adjoint=adjoint)
     x = traj.displacement
     objective = jnp.mean((x[:, 2] / 1e-6) ** 2)
     deform = physics.contact_deformations(x[:, 2] - x[:, 1], bsfs.build_system(p).nut)
-    return objective, traj.status, jnp.min(jnp.stack(deform))
+    return objective, traj.result, jnp.min(jnp.stack(deform))
 
 
 def _objective(params, theta, frequency):
@@ -189,8 +190,8 @@ _batched = eqx.filter_jit(jax.vmap(_run, in_axes=(None, 0, 0)))
 @pytest.fixture(scope="module")
 def base_run(params):
     theta = _f(THETA0)
-    value, status, deform = _value(params, theta, _f(500.0))
-    assert int(status) == 0 and np.isfinite(float(value))
+    value, result, deform = _value(params, theta, _f(500.0))
+    assert bool(result == RESULTS.successful) and np.isfinite(float(value))
     assert float(deform) < 0.0  # the run really goes through contact loss
     return float(value), np.asarray(_grad(params, theta, _f(500.0)))
 
@@ -206,8 +207,8 @@ def test_grad_against_finite_differences(params, base_run):
 def test_no_retrace_on_new_values(params, base_run):
     """Changing parameter values (and the frequency) reuses the compiled function."""
     for theta, f in ((THETA0 * 1.01, 520.0), (THETA0 * 0.99, 480.0)):
-        value, status, _ = _value(params, _f(theta), _f(f))
-        assert int(status) == 0 and float(value) != base_run[0]
+        value, result, _ = _value(params, _f(theta), _f(f))
+        assert bool(result == RESULTS.successful) and float(value) != base_run[0]
     # Negative control: a new static setting would retrace, and the guard would catch it.
     with pytest.raises(RuntimeError, match="can only be traced 1 times"):
         _value(params, jnp.asarray(THETA0, dtype=jnp.float32).astype(int), _f(500.0))
@@ -217,8 +218,8 @@ def test_vmap_over_frequency_and_balls(params):
     thetas = np.stack([THETA0, THETA0, THETA0])
     thetas[2, 1] = 40.0  # a member with 40 balls per half
     freqs = jnp.array([500.0, 650.0, 500.0])
-    values, status, deform = _batched(params, _f(thetas), freqs)
-    assert np.all(np.asarray(status) == 0)
+    values, result, deform = _batched(params, _f(thetas), freqs)
+    assert np.all(result_ok(result))
     for i in range(3):  # each member equals its unbatched run
         solo = float(_value(params, _f(thetas[i]), freqs[i])[0])
         np.testing.assert_allclose(float(values[i]), solo, rtol=1e-9)
@@ -226,13 +227,13 @@ def test_vmap_over_frequency_and_balls(params):
 
 
 def test_vmap_failed_member_is_nan_not_crash(params):
-    """Under vmap a failing member (far too many steps needed) reports status != 0 and
-    NaN output, while the others are unaffected."""
+    """Under vmap a failing member (far too many steps needed) reports its `RESULTS` item
+    and NaN output, while the others are unaffected."""
     thetas = jnp.asarray(np.stack([THETA0, THETA0, THETA0]))
     freqs = jnp.array([500.0, 2.0, 650.0])  # 2 Hz: 1 s of 6 kHz dynamics at rtol 1e-14
-    values, status, _ = _batched(params, thetas, freqs)
-    status = np.asarray(status)
-    assert status[1] == 1 and status[0] == 0 and status[2] == 0  # 1: max steps reached
+    values, result, _ = _batched(params, thetas, freqs)
+    ok, max_steps = result_ok(result), np.asarray(result == RESULTS.max_steps_reached)
+    assert max_steps[1] and ok[0] and ok[2] and not ok[1]
     assert np.isnan(float(values[1]))
     assert np.isfinite(np.asarray(values)[[0, 2]]).all()
 
@@ -275,13 +276,14 @@ def test_solver_failure_raises(params):
     with pytest.raises(SolverError) as info:
         bsfs.simulate(params, frequency_hz=500.0, force_n=100.0, y0=jnp.zeros(6), **FAIL)
     msg = str(info.value)
-    assert "maximum number of solver steps" in msg and "raise max_steps" in msg
+    assert "maximum number of solver steps" in msg and "increasing `max_steps`" in msg
     assert "max_steps=10" in msg and "rtol=" in msg and "solver=tsit5" in msg
     assert "500 Hz" in msg and "100 N" in msg
-    # throw=False hands the status back with NaN states instead of numbers.
+    # throw=False hands the result back with NaN states instead of numbers.
     traj = bsfs.simulate(params, frequency_hz=500.0, force_n=100.0, y0=jnp.zeros(6),
                          throw=False, **FAIL)
-    assert int(traj.status) == 1 and np.all(np.isnan(np.asarray(traj.displacement)))
+    assert bool(traj.result == RESULTS.max_steps_reached) and not bool(traj.ok)
+    assert np.all(np.isnan(np.asarray(traj.displacement)))
     # A non-finite initial state never produces silent NaN output.
     with pytest.raises(SolverError):
         bsfs.simulate(params, frequency_hz=500.0, force_n=100.0,
@@ -306,3 +308,13 @@ def test_simulate_argument_errors(params):
         bsfs.simulate(params, frequency_hz=-5.0, force_n=1.0)
     with pytest.raises(ValueError, match="periods must be >= 1"):
         bsfs.simulate(params, frequency_hz=5.0, force_n=1.0, periods=0)
+
+
+def test_equilibrium_failure_raises_unless_throw_false(params):
+    """A failed Newton solve of the static equilibrium names its cause; throw=False hands
+    back the (non-finite) iterate, as under jit."""
+    with pytest.raises(SolverError, match="static equilibrium under P0 = nan N failed"):
+        bsfs.equilibrium(params, float("nan"))
+    x = bsfs.equilibrium(params, float("nan"), throw=False)
+    assert not np.any(np.isfinite(np.asarray(x)))
+    assert np.all(np.isfinite(np.asarray(bsfs.equilibrium(params, 2000.0))))

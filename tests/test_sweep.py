@@ -14,7 +14,7 @@ import pytest
 
 from bsfs_jax.analysis import SweepConfig, SweepProblem, bsfs_problem, load_sweep, sweep
 from bsfs_jax.analysis import _sweep as sweep_module
-from bsfs_jax.solvers import SolverSettings
+from bsfs_jax.solvers import RESULTS, SolverSettings, result_codes, result_ok
 from tests.textbook import duffing
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +47,8 @@ def harmonic_balance_folds(omegas):
     three = []
     for w in np.linspace(omegas[0], omegas[-1], 4001):
         # cubic in u = A^2
-        c = [9 / 16 * BETA**2, 1.5 * BETA * (ALPHA - w * w), (ALPHA - w * w) ** 2 + (DELTA * w) ** 2,
+        c = [9 / 16 * BETA**2, 1.5 * BETA * (ALPHA - w * w),
+             (ALPHA - w * w) ** 2 + (DELTA * w) ** 2,
              -GAMMA**2]
         roots = np.roots(c)
         real = roots[(abs(roots.imag) < 1e-9) & (roots.real > 0)]
@@ -64,7 +65,7 @@ def both(problem):
 
 def test_continued_sweep_shows_hysteresis_and_jumps(both):
     assert both.directions == ("up", "down")
-    assert np.all(both.status == 0)
+    assert np.all(result_ok(both.result)) and not np.any(both.failed)
     jumps = both.jumps()
     up = [j for j in jumps if j.direction == "up"]
     down = [j for j in jumps if j.direction == "down"]
@@ -98,8 +99,11 @@ def test_save_load_roundtrip(both, tmp_path):
     assert back.param == "omega" and back.unit == "rad/s" and back.directions == ("up", "down")
     np.testing.assert_array_equal(back.amplitude, both.amplitude)
     np.testing.assert_array_equal(back.strobe, both.strobe)
+    np.testing.assert_array_equal(result_codes(back.result), result_codes(both.result))
     with np.load(path) as z:
         attrs = json.loads(str(z["attrs"]))
+        assert z["status"].shape == (2, OMEGAS.size) and np.all(z["status"] == 0)
+    assert attrs["status_messages"] == {"0": "successful"}
     assert attrs["dims"]["strobe"] == ["direction", "point", "sample", "state"]
     assert attrs["config"]["settings"]["rtol"] == 1e-8
     assert back.summary()["points"][0]["motion"] == "period-1"
@@ -172,16 +176,22 @@ def test_failed_point_is_marked_and_does_not_stop_the_sweep(problem):
                       settings=SolverSettings(rtol=1e-8, atol=1e-10, max_steps=50_000))
     values = np.array([0.05, 0.8, 2.0, 2.4])
     res = sweep(problem, values, config=cfg, progress=False)
-    assert res.status[0, 0] == 1  # max steps
-    assert np.all(res.status[0, 1:] == 0)
+    assert bool(res.point_result(0, 0) == RESULTS.max_steps_reached)
+    assert np.all(result_ok(res.result)[0, 1:])
     assert np.all(np.isnan(res.strobe[0, 0])) and np.isnan(res.amplitude[0, 0, 0])
     assert np.all(np.isfinite(res.amplitude[0, 1:]))
     motions = res.motions()[0]
     assert motions[0].kind == "failed" and motions[1].kind == "periodic"
-    assert res.summary()["failed_points"] == 1
+    summary = res.summary()
+    assert summary["failed_points"] == 1
+    first = summary["points"][0]
+    assert first["status"] == int(result_codes(RESULTS.max_steps_reached))
+    assert "maximum number of solver steps" in first["status_message"]
+    assert summary["points"][1]["status_message"] == "successful"
     # In continued mode the point after a failure restarts cold and succeeds.
     cont = sweep(problem, values, mode="continued", config=cfg, progress=False)
-    assert cont.status[0, 0] == 1 and np.all(cont.status[0, 1:] == 0)
+    ok = result_ok(cont.result)[0]
+    assert bool(cont.point_result(0, 0) == RESULTS.max_steps_reached) and np.all(ok[1:])
 
 
 SHARD_SCRIPT = textwrap.dedent("""
@@ -191,7 +201,7 @@ SHARD_SCRIPT = textwrap.dedent("""
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp, numpy as np
     from bsfs_jax.analysis import SweepConfig, SweepProblem, sweep
-    from bsfs_jax.solvers import SolverSettings
+    from bsfs_jax.solvers import SolverSettings, result_ok
     from tests.textbook import duffing
 
     def setup(data, omega):
@@ -208,7 +218,7 @@ SHARD_SCRIPT = textwrap.dedent("""
         "sharded_over": sharded.metadata["sharded_over_devices"],
         "max_diff": float(np.nanmax(abs(sharded.amplitude - single.amplitude))),
         "lyap_diff": float(np.nanmax(abs(sharded.lyapunov - single.lyapunov))),
-        "status": sharded.status.tolist(),
+        "ok": np.asarray(result_ok(sharded.result)).tolist(),
     }))
 """)
 
@@ -221,7 +231,7 @@ def test_sharded_sweep_over_two_cpu_devices():
     info = json.loads(out.stdout.strip().splitlines()[-1])
     assert info["devices"] == 2 and info["sharded_over"] == 2
     assert info["max_diff"] < 1e-12 and info["lyap_diff"] < 1e-9
-    assert all(s == 0 for s in info["status"][0])
+    assert all(info["ok"][0])
 
 
 # ---------------------------------------------------------------------------------------
@@ -296,7 +306,7 @@ def test_queue_engine_matches_lockstep_map(problem):
     queued = sweep(problem, values, config=dataclasses.replace(CFG, engine="queue",
                                                                max_slice_periods=4),
                    progress=False)
-    assert np.all(queued.status == 0)
+    assert np.all(result_ok(queued.result))
     np.testing.assert_allclose(queued.amplitude, reference.amplitude, rtol=1e-5)
     np.testing.assert_allclose(queued.strobe, reference.strobe, rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(queued.spectrum, reference.spectrum, rtol=1e-3, atol=1e-7)

@@ -3,45 +3,25 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from ..model import Sinusoid, build_system, vector_field
+from ..machine import FORCE, FREQUENCY, BSFSFamily, parameter_unit
+from ..model import vector_field
 from ..params import BallScrewParams, lookup_key
 
-FREQUENCY, FORCE = "frequency_hz", "force_n"
 STATE_NAMES = ("x_b", "x_s", "x_n", "v_b", "v_s", "v_n")
 STATE_UNITS = ("m", "m", "m", "m/s", "m/s", "m/s")
 
-# Units of the TOML vocabulary, read from the suffix of a key's name (longest first).
-_SUFFIX_UNITS = (
-    ("_m_per_n23", "m/N^(2/3)"), ("_n_s_per_m", "N s/m"), ("_n_per_um", "N/um"),
-    ("_per_k", "1/K"), ("_gpa", "GPa"), ("_rpm", "r/min"), ("_deg", "deg"), ("_mm", "mm"),
-    ("_um", "um"), ("_kg", "kg"), ("_hz", "Hz"), ("_n", "N"), ("_c", "degC"), ("_w", "W"),
-)
-
-
-def parameter_unit(name: str) -> str:
-    """Unit of a sweepable name ("frequency_hz", "force_n" or a `section.key`)."""
-    key = name.split(".")[-1]
-    for suffix, unit in _SUFFIX_UNITS:
-        if key.endswith(suffix):
-            return unit
-    return ""
-
 
 class BSFSSetup(eqx.Module):
-    """setup(data, value) for the ball screw; data = (params, frequency_hz, force_n)."""
+    """setup(data, value) for the ball screw; data = (params, frequency_hz, force_n).
+
+    The sweep's view of the one family protocol: it is `machine.BSFSFamily` (the family
+    that continuation and the orbit metrics use) evaluated at the swept value."""
 
     param: str = eqx.field(static=True)
 
     def __call__(self, data, value):
         params, frequency, force = data
-        if self.param == FREQUENCY:
-            frequency = value
-        elif self.param == FORCE:
-            force = value
-        else:
-            params = params.replace(self.param, value)
-        forcing = Sinusoid(force, frequency)
-        return (build_system(params), forcing), forcing.period
+        return BSFSFamily(params, frequency, force, self.param)(value)
 
 
 def bsfs_problem(params: BallScrewParams, param: str = FREQUENCY, *, frequency_hz=None,

@@ -18,6 +18,7 @@ import dataclasses
 
 import numpy as np
 
+from ..solvers import result_ok
 from ._spectrum import amplitude_spectrum, line_fraction
 
 PERIODIC, QUASI_PERIODIC, CHAOTIC, FAILED = "periodic", "quasi-periodic", "chaotic", "failed"
@@ -94,7 +95,7 @@ def strobe_period(strobe, *, scale=None, max_period: int = 16, tol: float = 1e-3
 
 
 def classify_motion(strobe, *, signal=None, spectrum=None, lyapunov_per_period=None,
-                    scale=None, status: int = 0,
+                    scale=None, result=None,
                     settings: ClassifierSettings = ClassifierSettings()) -> Motion:
     """Classify one steady response.
 
@@ -106,11 +107,13 @@ def classify_motion(strobe, *, signal=None, spectrum=None, lyapunov_per_period=N
       instead of computing one from `signal`.
     - `lyapunov_per_period`: lambda T of the largest exponent, if computed.
     - `scale`: per-coordinate amplitude used to judge repetition (default: strobe spread).
-    - `status`: solver status of the run (non-zero gives kind "failed").
+    - `result`: the solver's `RESULTS` item of the run (concrete; anything but
+      `RESULTS.successful` gives kind "failed"); None: judge from the samples only.
     """
     lyap = float("nan") if lyapunov_per_period is None else float(lyapunov_per_period)
     s = np.asarray(strobe, dtype=float)
-    if status != 0 or not np.all(np.isfinite(s)):
+    failed = result is not None and not np.all(result_ok(result))
+    if failed or not np.all(np.isfinite(s)):
         return Motion(FAILED, 0, FAILED, lyap, float("nan"), None)
     sig = s if s.ndim == 1 else s[:, 0]
     if signal is not None:

@@ -11,7 +11,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..solvers import SolverSettings, integrate
+from ..solvers import RESULTS, SolverSettings, integrate
 
 
 class TangentField(eqx.Module):
@@ -27,12 +27,23 @@ class TangentField(eqx.Module):
 
 
 class LyapunovResult(eqx.Module):
-    """`exponent` [1/time unit], per-interval `log_growth`, final `state`, solver `status`."""
+    """`exponent` [1/time unit], per-interval `log_growth`, final `state`, and the solver
+    `result` (a `RESULTS` item; the exponent is NaN unless it is successful)."""
 
     exponent: jax.Array
     log_growth: jax.Array
     state: jax.Array
-    status: jax.Array
+    result: RESULTS
+
+    @property
+    def ok(self) -> jax.Array:
+        """Bool array: `result == RESULTS.successful`."""
+        return self.result == RESULTS.successful
+
+
+def first_failure(a, b):
+    """The first unsuccessful of two `RESULTS` items (`a` if it failed, else `b`)."""
+    return RESULTS.where(a == RESULTS.successful, b, a)
 
 
 def initial_tangent(n: int):
@@ -47,10 +58,11 @@ def benettin_steps(vector_field, y, args, t0, interval, n_intervals: int,
 
     Traceable core used by `largest_lyapunov` and by the sweeps.
 
-    **Returns:** `(y_end, v_end, log_growth (n_intervals,), samples, status, num_steps)`,
+    **Returns:** `(y_end, v_end, log_growth (n_intervals,), samples, result, num_steps)`,
     with `v_end` the unit tangent vector at the end, and `samples`
     (n_intervals, k, n) states at `t_i + interval * (1..k)/k` when `ts_per_interval=k`
-    is given (else (n_intervals, 1, n): the state at the end of each interval).
+    is given (else (n_intervals, 1, n): the state at the end of each interval); `result`
+    is the first unsuccessful `RESULTS` item of the intervals (or `successful`).
     """
     n = y.shape[0]
     k = 1 if ts_per_interval is None else int(ts_per_interval)
@@ -59,25 +71,25 @@ def benettin_steps(vector_field, y, args, t0, interval, n_intervals: int,
     frac = jnp.arange(1, k + 1, dtype=float) / k
 
     def step(carry, i):
-        z, status, steps = carry
+        z, result, steps = carry
         t_a = t0 + i * interval
         t_b = t0 + (i + 1) * interval
         ts = t_a + interval * frac
         ts = ts.at[-1].set(t_b)
-        res = integrate(field, z, args, t_a, t_b, ts, settings)
+        res = integrate(field, z, args, t_a, t_b, ts, settings, throw=False)
         z_end = res.ys[-1]
         g = jnp.linalg.norm(z_end[n:])
         ok = jnp.isfinite(g) & (g > 0)
         g_safe = jnp.where(ok, g, 1.0)
         z_new = jnp.concatenate([z_end[:n], z_end[n:] / g_safe])
-        status = jnp.maximum(status, res.status)
+        result = first_failure(result, res.result)
         log_g = jnp.where(ok, jnp.log(g_safe), jnp.nan)
-        return (z_new, status, steps + res.num_steps), (log_g, res.ys[:, :n])
+        return (z_new, result, steps + res.num_steps), (log_g, res.ys[:, :n])
 
     z0 = jnp.concatenate([y, v])
-    init = (z0, jnp.asarray(0), jnp.asarray(0))
-    (z, status, steps), (logs, samples) = jax.lax.scan(step, init, jnp.arange(n_intervals))
-    return z[:n], z[n:], logs, samples, status, steps
+    init = (z0, RESULTS.successful, jnp.asarray(0))
+    (z, result, steps), (logs, samples) = jax.lax.scan(step, init, jnp.arange(n_intervals))
+    return z[:n], z[n:], logs, samples, result, steps
 
 
 def exponent_from_growth(log_growth, interval, discard: float = 0.25):
@@ -92,17 +104,18 @@ def exponent_from_growth(log_growth, interval, discard: float = 0.25):
 def _lyapunov_core(vector_field, y0, args, t0, interval, transient_intervals: int,
                    n_intervals: int, settings: SolverSettings):
     y = jnp.asarray(y0, dtype=float)
-    status = jnp.asarray(0)
+    result = RESULTS.successful
     if transient_intervals > 0:
         t1 = t0 + transient_intervals * interval
-        res = integrate(vector_field, y, args, t0, t1, jnp.stack([t1]), settings)
-        y, status = res.ys[-1], res.status
+        res = integrate(vector_field, y, args, t0, t1, jnp.stack([t1]), settings, throw=False)
+        y, result = res.ys[-1], res.result
         t0 = t1
     y_end, _, logs, _, st, _ = benettin_steps(vector_field, y, args, t0, interval, n_intervals,
                                         settings)
-    status = jnp.maximum(status, st)
+    result = first_failure(result, st)
     exponent = exponent_from_growth(logs, interval, discard=0.0)
-    return LyapunovResult(jnp.where(status == 0, exponent, jnp.nan), logs, y_end, status)
+    return LyapunovResult(jnp.where(result == RESULTS.successful, exponent, jnp.nan), logs,
+                          y_end, result)
 
 
 def largest_lyapunov(vector_field, y0, args, *, interval, n_intervals: int,
@@ -120,7 +133,7 @@ def largest_lyapunov(vector_field, y0, args, *, interval, n_intervals: int,
     - `settings`: `SolverSettings` (tolerances also apply to the tangent vector).
 
     **Returns:** `LyapunovResult` with `exponent` in 1/(time unit of f) (NaN if the solve
-    failed; see `status`, 0 = ok) and the per-interval `log_growth`.
+    failed; see `result`, a `RESULTS` item) and the per-interval `log_growth`.
     """
     if n_intervals < 1:
         raise ValueError(f"n_intervals must be >= 1, got {n_intervals}")

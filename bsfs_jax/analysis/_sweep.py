@@ -44,12 +44,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..solvers import SolverSettings, integrate
-from ._lyapunov import benettin_steps, exponent_from_growth
+from ..solvers import (
+    RESULTS,
+    SolverSettings,
+    integrate,
+    result_code,
+    result_codes,
+    result_from_codes,
+    result_text,
+)
+from ._lyapunov import benettin_steps, exponent_from_growth, first_failure
 from ._spectrum import amplitude_spectrum
 
 MODES = ("cold", "continued")
 DIRECTIONS = ("up", "down", "both")
+_OK = int(result_codes(RESULTS.successful))  # the code of a successful point in the arrays
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,15 +187,15 @@ def _point(problem: SweepProblem, value, y_start, n_transient, cfg: SweepConfig)
     t_plain = (n_transient - align) * period
     t1 = n_transient * period
     res = integrate(problem.vector_field, y_start, args, 0.0, t_plain, jnp.stack([t_plain]),
-                    settings)
+                    settings, throw=False)
     y = res.ys[-1]
     if cfg.lyapunov:
         tangent, steps_a = None, 0
         if align:
             y, tangent, _, _, st_a, steps_a = benettin_steps(
                 problem.vector_field, y, args, t_plain, period, align, settings)
-            res = eqx.tree_at(lambda r: r.status, res, jnp.maximum(res.status, st_a))
-        y_end, _, logs, samples, status2, steps2 = benettin_steps(
+            res = eqx.tree_at(lambda r: r.result, res, first_failure(res.result, st_a))
+        y_end, _, logs, samples, result2, steps2 = benettin_steps(
             problem.vector_field, y, args, t1, period, P, settings, tangent=tangent,
             ts_per_interval=spp)
         steps2 = steps2 + steps_a
@@ -194,14 +203,14 @@ def _point(problem: SweepProblem, value, y_start, n_transient, cfg: SweepConfig)
     else:
         frac = jnp.arange(1, P * spp + 1, dtype=float) / spp
         ts = t1 + period * frac
-        res2 = integrate(problem.vector_field, y, args, t1, ts[-1], ts, settings)
+        res2 = integrate(problem.vector_field, y, args, t1, ts[-1], ts, settings, throw=False)
         samples = res2.ys.reshape(P, spp, n_states)
-        y_end, status2, steps2 = res2.ys[-1], res2.status, res2.num_steps
+        y_end, result2, steps2 = res2.ys[-1], res2.result, res2.num_steps
         logs = jnp.full((P,), jnp.nan)
         lyap = jnp.asarray(jnp.nan)
-    status = jnp.maximum(res.status, status2)
+    result = first_failure(res.result, result2)
     flat = samples.reshape(P * spp, n_states)
-    ok = status == 0
+    ok = result == RESULTS.successful
     flat = jnp.where(ok, flat, jnp.nan)
     strobe = jnp.concatenate([y[None, :], samples[:, -1, :]], axis=0)
     strobe = jnp.where(ok, strobe, jnp.nan)
@@ -214,7 +223,7 @@ def _point(problem: SweepProblem, value, y_start, n_transient, cfg: SweepConfig)
         "spectrum": spectrum,
         "lyapunov": jnp.where(ok, lyap, jnp.nan),
         "log_growth": jnp.where(ok, logs, jnp.nan),
-        "status": status,
+        "status": result_code(result),
         "num_steps": res.num_steps + steps2,
         "end_state": jnp.where(ok, y_end, jnp.nan),
         "period": period,
@@ -222,9 +231,9 @@ def _point(problem: SweepProblem, value, y_start, n_transient, cfg: SweepConfig)
 
 
 def _reduce(problem, cfg: SweepConfig, samples, y_start, y_end, status, steps, period):
-    """Per-point outputs from the recorded samples (P, spp, n) (shared by both engines)."""
+    """Per-point outputs from the recorded samples (P, spp, n); `status` a result code."""
     P, spp, n_states = cfg.periods, cfg.samples_per_period, problem.n_states
-    ok = status == 0
+    ok = status == _OK
     flat = jnp.where(ok, samples.reshape(P * spp, n_states), jnp.nan)
     strobe = jnp.concatenate([y_start[None, :], samples[:, -1, :]], axis=0)
     _, spectrum = amplitude_spectrum(flat[:, problem.observe], period / spp, window=cfg.window)
@@ -275,12 +284,12 @@ def _queue_points(problem, values, y0s, cfg: SweepConfig):
         t_a, t_b = k * period, k_end * period
         j = jnp.arange(1, n_save + 1, dtype=float) / spp
         ts = jnp.minimum(t_a + period * j, t_b)
-        res = integrate(problem.vector_field, y, args, t_a, t_b, ts, settings)
+        res = integrate(problem.vector_field, y, args, t_a, t_b, ts, settings, throw=False)
         # Rows of the point's record (P * spp samples after the transient) these fill.
         row = jnp.round((k - n_tr) * spp + j * spp).astype(int) - 1
         valid = (k + j <= k_end + 1e-9) & (k + j > n_tr + 1e-9)
         row = jnp.where(valid, row, P * spp)  # out of range: dropped
-        return res.ys[-1], k_end, res.status, res.num_steps, res.ys, row
+        return res.ys[-1], k_end, result_code(res.result), res.num_steps, res.ys, row
 
     def cond(state):
         return jnp.any(state["active"])
@@ -297,7 +306,7 @@ def _queue_points(problem, values, y0s, cfg: SweepConfig):
         steps = state["steps"].at[jnp.where(act, i, N)].add(nst, mode="drop")
         at_start = act & (k_new == n_tr)
         start = state["start"].at[jnp.where(at_start, i, N)].set(y_new, mode="drop")
-        failed = st != 0
+        failed = st != _OK
         done = act & ((k_new >= total) | failed)
         end = state["end"].at[jnp.where(done, i, N)].set(y_new, mode="drop")
         # Finished lanes take the next points of the queue, in lane order.
@@ -312,7 +321,7 @@ def _queue_points(problem, values, y0s, cfg: SweepConfig):
 
     state = dict(
         i=jnp.arange(lanes), y=y0s[:lanes], k=jnp.zeros(lanes), active=jnp.ones(lanes, bool),
-        record=jnp.full((N, P * spp, n), jnp.nan), status=jnp.zeros(N, int),
+        record=jnp.full((N, P * spp, n), jnp.nan), status=jnp.full(N, _OK, dtype=jnp.int32),
         steps=jnp.zeros(N, int), start=jnp.full((N, n), jnp.nan),
         end=jnp.full((N, n), jnp.nan), next=jnp.asarray(lanes))
     state = jax.lax.while_loop(cond, body, state)
@@ -367,7 +376,7 @@ def _continued_chunk(problem, values, y_carry, ok_carry, first, cfg: SweepConfig
             cold = is_first | ~ok | ~jnp.all(jnp.isfinite(y))
             y_in = jnp.where(cold, problem.y0, y)
             out = _point(problem, v, y_in, jnp.where(cold, n_cold, n_cont), cfg)
-            return (out["end_state"], out["status"] == 0, jnp.asarray(False)), out
+            return (out["end_state"], out["status"] == _OK, jnp.asarray(False)), out
 
         return jax.lax.scan(step, (y, ok, is_first), vals)
 
@@ -440,8 +449,10 @@ def detect_jumps(values, amplitude, *, direction: str = "up", rel: float = 0.3,
     return jumps
 
 
+# Arrays of a sweep, as stored in files; "status" holds the integer codes of `result`.
 _ARRAY_FIELDS = ("strobe", "amplitude", "mean", "peak", "spectrum", "lyapunov", "log_growth",
                  "status", "num_steps", "end_state")
+_RESULT_FIELDS = tuple(n for n in _ARRAY_FIELDS if n != "status")
 
 
 @dataclasses.dataclass
@@ -460,8 +471,9 @@ class SweepResult:
       the forcing; `spectrum_hz()` converts to Hz);
     - `lyapunov` (D, N): largest Lyapunov exponent [1/time unit] (NaN if not computed);
     - `log_growth` (D, N, periods): per-period tangent growth (Benettin);
-    - `status` (D, N): solver status (0 ok; see `bsfs_jax.solvers.STATUS_MESSAGES`);
-      failed points hold NaN; `num_steps` (D, N); `end_state` (D, N, n);
+    - `result` (D, N): the solver outcome of each point, a batched `RESULTS` item (files
+      store its integer codes as `status`); failed points hold NaN; `num_steps` (D, N);
+      `end_state` (D, N, n);
     - `period` (N,): forcing period [time unit].
     """
 
@@ -479,7 +491,7 @@ class SweepResult:
     spectrum: np.ndarray
     lyapunov: np.ndarray
     log_growth: np.ndarray
-    status: np.ndarray
+    result: RESULTS
     num_steps: np.ndarray
     end_state: np.ndarray
     state_names: tuple
@@ -493,7 +505,11 @@ class SweepResult:
     @property
     def failed(self) -> np.ndarray:
         """(D, N) bool: points whose solve failed (their data are NaN)."""
-        return self.status != 0
+        return result_codes(self.result) != _OK
+
+    def point_result(self, d: int, i: int) -> RESULTS:
+        """The `RESULTS` item of point `i` of direction `d`."""
+        return result_from_codes(result_codes(self.result)[d, i])
 
     def direction_index(self, direction: str) -> int:
         try:
@@ -562,7 +578,7 @@ class SweepResult:
                 row.append(classify_motion(
                     self.strobe[d, i], lyapunov_per_period=lyap,
                     spectrum=self.spectrum[d, i],
-                    scale=scale[d, i], status=int(self.status[d, i]),
+                    scale=scale[d, i], result=self.point_result(d, i),
                     settings=settings))
             out.append(row)
         return out
@@ -571,6 +587,7 @@ class SweepResult:
         """JSON-ready summary: per point value, amplitude, motion class, exponent, status."""
         motions = self.motions(settings)
         names, units = self.state_names, self.state_units
+        codes, texts = result_codes(self.result), result_text(self.result)
         points = []
         for d, name in enumerate(self.directions):
             for i in range(self.values.size):
@@ -588,7 +605,8 @@ class SweepResult:
                     "spectral_line_fraction": m.line_fraction,
                     "evidence_consistent": m.consistent,
                     "converged": m.converged,
-                    "status": int(self.status[d, i]),
+                    "status": int(codes[d, i]),
+                    "status_message": str(texts[d, i]),
                 })
         return {
             "param": self.param,
@@ -630,10 +648,13 @@ class SweepResult:
                 "mean": "state units", "peak": "state units",
                 "spectrum": self.state_units[self.observe] if self.state_units else "",
                 "lyapunov": f"1/{self.time_unit}", "log_growth": "1 (per period)",
-                "status": "0 ok, 1 max steps, 2 non-finite, 3 step-size failure",
+                "status": "solver result code (bsfs_jax.RESULTS; 0 successful); the messages "
+                          "are in status_messages",
             },
+            "status_messages": _code_messages(self.result),
         }
-        arrays = {name: getattr(self, name) for name in _ARRAY_FIELDS}
+        arrays = {name: getattr(self, name) for name in _RESULT_FIELDS}
+        arrays["status"] = result_codes(self.result)
         _save_npz_atomic(path, values=self.values, period=self.period,
                          spectrum_order=self.spectrum_order,
                          attrs=np.array(json.dumps(_jsonable(attrs))), **arrays)
@@ -645,14 +666,20 @@ def load_sweep(path) -> SweepResult:
         if "attrs" not in z:
             raise ValueError(f"{path}: not a bsfs sweep file (no 'attrs' entry)")
         attrs = json.loads(str(z["attrs"]))
-        arrays = {name: z[name] for name in _ARRAY_FIELDS}
-        return SweepResult(
+        arrays = {name: z[name] for name in _RESULT_FIELDS}
+        return SweepResult(result=result_from_codes(z["status"]),
             param=attrs["param"], unit=attrs["unit"], values=z["values"],
             directions=tuple(attrs["directions"]), mode=attrs["mode"], period=z["period"],
             spectrum_order=z["spectrum_order"], state_names=tuple(attrs["state_names"]),
             state_units=tuple(attrs["state_units"]), observe=int(attrs["observe"]),
             time_unit=attrs["time_unit"], config=attrs["config"], metadata=attrs["metadata"],
             **arrays)
+
+
+def _code_messages(result) -> dict:
+    """{code: message} for the result codes present (and 0, successful)."""
+    codes = np.unique(np.append(result_codes(result), _OK))
+    return {str(int(c)): str(result_text(result_from_codes(c))) for c in codes}
 
 
 def _jsonable(obj):
@@ -804,8 +831,8 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
       the batching of the CPU/GPU but restart the continuation at the piece boundaries.
     - `metadata`: extra JSON-able entries stored in the result (e.g. the parameter file).
 
-    **Returns:** a `SweepResult`. Failed points (solver status != 0) are marked in
-    `status` and hold NaN; they never stop the sweep.
+    **Returns:** a `SweepResult`. Failed points (a `result` other than
+    `RESULTS.successful`) hold NaN; they never stop the sweep.
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -904,7 +931,7 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
                 ckpt.save(k, data)
             if mode == "continued":
                 y_carry = data["end_state"][:, real - 1].copy()
-                ok_carry = data["status"][:, real - 1] == 0
+                ok_carry = data["status"][:, real - 1] == _OK
                 first = np.zeros(L, dtype=bool)
             parts.append(data)
             done = sum(min(max(p.size - lo, 0), real) for p in lanes)
@@ -941,4 +968,5 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
         mode=mode, period=period, spectrum_order=order,
         state_names=names, state_units=units, observe=problem.observe,
         time_unit=problem.time_unit, config=_jsonable(config.to_dict()), metadata=meta,
-        **{name: out_arrays[name] for name in _ARRAY_FIELDS})
+        result=result_from_codes(out_arrays["status"]),
+        **{name: out_arrays[name] for name in _RESULT_FIELDS})

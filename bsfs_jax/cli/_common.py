@@ -96,3 +96,10 @@ def save_figure(fig, path) -> None:
     fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=130,
                 bbox_inches="tight")
     write_bytes_atomic(path, buf.getvalue())
+
+
+def progress_enabled(args) -> bool:
+    """Progress bars only on a terminal, and never with --no-progress."""
+    import sys
+
+    return not getattr(args, "no_progress", False) and sys.stderr.isatty()

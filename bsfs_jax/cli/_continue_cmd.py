@@ -10,6 +10,7 @@ from ._common import (
     add_params_args,
     load_params_from_args,
     out_dir,
+    progress_enabled,
     save_figure,
     write_bytes_atomic,
     write_json,
@@ -22,8 +23,9 @@ def register(sub) -> None:
     p = sub.add_parser(
         "continue", help="continue periodic orbits in frequency: FRC with unstable branches",
         description="Follow the T-periodic response to P sin(2 pi f t) on the nut from --start "
-        "to --stop Hz by shooting and pseudo-arclength continuation (through folds). Writes "
-        "frc.png (stable solid, unstable dashed, bifurcations marked), branch.csv, "
+        "to --stop Hz by pseudo-arclength continuation of periodic orbits (through folds), "
+        "with harmonic balance or shooting. Folds are cross-checked with the other method. "
+        "Writes frc.png (stable solid, unstable dashed, bifurcations marked), branch.csv, "
         "bifurcations.json and summary.json.")
     p.add_argument("--start", type=float, required=True, metavar="HZ",
                    help="start frequency [Hz] (a transient simulation there gives the guess)")
@@ -31,6 +33,17 @@ def register(sub) -> None:
     p.add_argument("--force", type=float, default=3000.0, metavar="N",
                    help="force amplitude on the nut [N] (3000)")
     add_params_args(p)
+    p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
+                   help="orbit method: harmonic balance (hb), shooting, or auto (default: "
+                   "hb where its error estimate passes along the whole branch, else shooting)")
+    p.add_argument("--harmonics", type=int, default=8,
+                   help="starting harmonic count for hb; doubled where the error estimate "
+                   "exceeds --hb-tol (8)")
+    p.add_argument("--hb-tol", type=float, default=1e-5,
+                   help="hb error tolerance: estimated state error relative to the orbit "
+                   "size (1e-5)")
+    p.add_argument("--no-cross-check", action="store_true",
+                   help="skip the cross-check of the folds with the other method")
     p.add_argument("--ds", type=float, default=0.1,
                    help="initial arclength step in scaled units (0.1; adapted)")
     p.add_argument("--ds-max", type=float, default=None, help="largest step (10 ds)")
@@ -48,12 +61,48 @@ def register(sub) -> None:
     p.set_defaults(func=run_continue)
 
 
+def _cross_check_folds(family, branch, method, settings, args):
+    """Locate each fold again with `method`, by a short continuation across it."""
+    from ..solvers import continue_orbits
+
+    checks = []
+    for b in branch.bifurcations:
+        if b.kind != "fold":
+            continue
+        i = b.index
+        p0 = float(branch.p[i])
+        p_far = b.p + 2.0 * (b.p - p0) if b.p != p0 else b.p * 1.001
+        try:
+            local = continue_orbits(family, branch.states[i], p0, p_far, method=method,
+                                    ds=0.02, max_points=60, amplitude_index=2,
+                                    p_scale=abs(p_far - p0) * 10)
+            folds = [f for f in local.bifurcations if f.kind == "fold"]
+        except Exception as exc:  # noqa: BLE001 - reported, not fatal
+            checks.append({"frequency_hz": b.p, "other_method": method.name,
+                           "other_frequency_hz": None, "relative_difference": None,
+                           "note": f"cross-check failed: {exc}"})
+            continue
+        if not folds:
+            checks.append({"frequency_hz": b.p, "other_method": method.name,
+                           "other_frequency_hz": None, "relative_difference": None,
+                           "note": "the other method found no fold near this one"})
+            continue
+        f = min(folds, key=lambda f: abs(f.p - b.p))
+        checks.append({"frequency_hz": b.p, "other_method": method.name,
+                       "other_frequency_hz": f.p,
+                       "relative_difference": abs(f.p - b.p) / abs(b.p),
+                       "note": "agree" if abs(f.p - b.p) <= 1e-4 * abs(b.p) else
+                       "DISAGREE by more than 1e-4 (relative)"})
+    return checks
+
+
 def run_continue(args) -> int:
     import bsfs_jax
 
+    from ..machine import bsfs_family, simulate
     from ..params import params_summary
     from ..plotting import plot_continuation
-    from ..solvers import SolverSettings, bsfs_family, continue_orbits, simulate
+    from ..solvers import HarmonicBalance, Shooting, SolverError, SolverSettings, continue_orbits
 
     if not (args.start > 0 and args.stop > 0) or args.start == args.stop:
         raise CLIError(f"--start and --stop must be positive and differ, got {args.start} "
@@ -62,9 +111,13 @@ def run_continue(args) -> int:
         raise CLIError(f"--force must be positive, got {args.force}")
     if not args.ds > 0 or args.max_points < 2 or args.transient_periods < 0:
         raise CLIError("need --ds > 0, --max-points >= 2 and --transient-periods >= 0")
+    if not (args.harmonics >= 1 and args.hb_tol > 0):
+        raise CLIError("need --harmonics >= 1 and --hb-tol > 0")
     params = load_params_from_args(args)
     folder = out_dir(args.out)
     settings = SolverSettings(rtol=args.rtol, atol=args.atol, solver=args.solver)
+    shooting = Shooting(settings=settings)
+    hb = HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol)
     dof = _DOFS[args.dof]
     started = time.perf_counter()
     family = bsfs_family(params, args.force)
@@ -73,34 +126,65 @@ def run_continue(args) -> int:
     guess = simulate(params, frequency_hz=args.start, force_n=args.force,
                      transient_periods=args.transient_periods, periods=1,
                      samples_per_period=64).final_state
-    print(f"continuing from {args.start:g} to {args.stop:g} Hz ...", flush=True)
+
+    def run(method):
+        print(f"continuing from {args.start:g} to {args.stop:g} Hz ({method.name}) ...",
+              flush=True)
+        return continue_orbits(family, guess, args.start, args.stop, method=method,
+                               ds=args.ds, ds_max=args.ds_max, max_points=args.max_points,
+                               amplitude_index=dof, progress=progress_enabled(args))
+
     t_cont = time.perf_counter()
-    branch = continue_orbits(family, guess, args.start, args.stop, ds=args.ds,
-                             ds_max=args.ds_max, max_points=args.max_points,
-                             settings=settings, amplitude_index=dof,
-                             progress=not args.no_progress)
+    notes = []
+    if args.method == "shooting":
+        branch = run(shooting)
+    else:
+        try:
+            branch = run(hb)
+            bad = branch.info["stop_reason"] != "left the parameter interval" or not bool(
+                np.all(branch.error_estimates <= args.hb_tol))
+        except SolverError as exc:
+            if args.method == "hb":
+                raise
+            branch, bad = None, True
+            notes.append(f"harmonic balance failed ({exc})")
+        if bad and args.method == "auto":
+            notes.append("harmonic balance did not pass its error estimate along the whole "
+                         "branch: used shooting")
+            branch = run(shooting)
     t_cont = time.perf_counter() - t_cont
+    primary = branch.method
+    other = shooting if isinstance(primary, HarmonicBalance) else HarmonicBalance(
+        harmonics=max(args.harmonics, 16), error_tol=args.hb_tol)
+    checks = [] if args.no_cross_check else _cross_check_folds(family, branch, other,
+                                                               settings, args)
 
     # branch.csv: one row per orbit.
     mu_mod = np.abs(branch.multipliers)
     amps_um = branch.amplitudes[:, :3] * 1e6
     header = [
         "# bsfs continue: periodic orbits (period 1/f) continued in the excitation frequency",
-        f"# force_n = {args.force}", f"# dof = {args.dof}",
+        f"# force_n = {args.force}", f"# dof = {args.dof}", f"# method = {primary.name}"
+        + (f" ({primary.harmonics} harmonics)" if isinstance(primary, HarmonicBalance)
+           else ""),
         "# amplitude = half peak-to-peak displacement over one period [um]",
         "# state at t = 0 (phase of P sin(2 pi f t)): displacements [m], velocities [m/s]",
         "# stable = 1 when every Floquet multiplier has modulus < 1",
+        "# residual = Newton residual (scaled); error_estimate = harmonic balance: estimated "
+        "state error relative to the orbit size, shooting: the residual",
     ]
     cols = ["frequency_hz", "amplitude_um", "amp_bearing_um", "amp_screw_um", "amp_nut_um",
             "stable", "max_multiplier_modulus", "x_b_m", "x_s_m", "x_n_m", "v_b_m_s",
-            "v_s_m_s", "v_n_m_s"]
+            "v_s_m_s", "v_n_m_s", "residual", "error_estimate"]
     table = np.column_stack([branch.p, branch.amplitude * 1e6, amps_um,
-                             branch.stable.astype(float), mu_mod.max(axis=1), branch.states])
+                             branch.stable.astype(float), mu_mod.max(axis=1), branch.states,
+                             branch.residuals, branch.error_estimates])
     buf = io.StringIO()
     buf.write("\n".join(header) + "\n" + ",".join(cols) + "\n")
     np.savetxt(buf, table, delimiter=",", fmt="%.10e")
     write_bytes_atomic(folder / "branch.csv", buf.getvalue().encode())
 
+    check_by_f = {c["frequency_hz"]: c for c in checks}
     bifs = [{
         "type": b.kind,
         "frequency_hz": b.p,
@@ -109,12 +193,14 @@ def run_continue(args) -> int:
         "multiplier_moduli": np.abs(b.multipliers).tolist(),
         "located": b.located,
         "branch_index": b.index,
+        "method": primary.name,
+        **({"cross_check": check_by_f[b.p]} if b.p in check_by_f else {}),
     } for b in branch.bifurcations]
     write_json(folder / "bifurcations.json", bifs)
 
     fig = plot_continuation(
         branch, y_label=f"{args.dof.capitalize()} amplitude (half peak-to-peak) [µm]",
-        title=f"BSFS frequency response by continuation: {args.force:g} N, "
+        title=f"BSFS frequency response by continuation ({primary.name}): {args.force:g} N, "
               f"{float(params.thermal.speed_rpm):g} r/min, thermal "
               f"{'on' if params.thermal.enabled else 'off'}")
     save_figure(fig, folder / "frc.png")
@@ -122,19 +208,35 @@ def run_continue(args) -> int:
 
     plt.close(fig)
 
-    peak = int(np.argmax(branch.amplitude))
+    pk = branch.peak
+    if pk is not None:
+        peak_amp, peak_f, peak_how = pk.amplitude, pk.p, (
+            "located maximum along the branch (dA/ds = 0)" if pk.located else
+            "bracketed maximum along the branch (dA/ds not driven to zero)")
+    else:
+        i = int(np.argmax(branch.amplitude))
+        peak_amp, peak_f = float(branch.amplitude[i]), float(branch.p[i])
+        peak_how = "no interior maximum: the largest amplitude is at an end of the interval"
     summary = {
         "bsfs_version": bsfs_jax.__version__,
         "start_hz": args.start, "stop_hz": args.stop, "force_n": args.force,
         "dof": args.dof, "points": len(branch),
+        "method": primary.name,
+        "harmonics": getattr(primary, "harmonics", None),
         "stable_points": int(branch.stable.sum()),
         "unstable_points": int((~branch.stable).sum()),
-        "peak_amplitude_um": float(branch.amplitude[peak] * 1e6),
-        "peak_frequency_hz": float(branch.p[peak]),
+        "peak_amplitude_um": float(peak_amp * 1e6),
+        "peak_frequency_hz": float(peak_f),
+        "peak": peak_how,
         "bifurcations": [{"type": b["type"], "frequency_hz": b["frequency_hz"]} for b in bifs],
+        "fold_cross_checks": checks,
+        "max_residual": float(np.max(branch.residuals)),
+        "max_error_estimate": float(np.max(branch.error_estimates)),
         "stop_reason": branch.info["stop_reason"],
         "steps": branch.info["steps"], "rejected_steps": branch.info["rejected"],
+        "notes": notes,
         "settings": {"ds": args.ds, "ds_max": args.ds_max, "max_points": args.max_points,
+                     "method": args.method, "hb_tol": args.hb_tol,
                      "rtol": args.rtol, "atol": args.atol, "solver": args.solver,
                      "transient_periods": args.transient_periods,
                      "state_scale": branch.info["scale"]},
@@ -144,10 +246,17 @@ def run_continue(args) -> int:
         "runtime_s": time.perf_counter() - started,
     }
     write_json(folder / "summary.json", summary)
-    print(f"{len(branch)} orbits ({summary['stable_points']} stable), peak "
-          f"{summary['peak_amplitude_um']:.3f} um at {summary['peak_frequency_hz']:.2f} Hz; "
-          + (", ".join(f"{b['type']} at {b['frequency_hz']:.2f} Hz" for b in bifs)
+    for note in notes:
+        print(f"note: {note}")
+    print(f"{len(branch)} orbits by {primary.name} ({summary['stable_points']} stable), peak "
+          f"{summary['peak_amplitude_um']:.4f} um at {summary['peak_frequency_hz']:.3f} Hz; "
+          + (", ".join(f"{b['type']} at {b['frequency_hz']:.3f} Hz" for b in bifs)
              or "no bifurcations"))
+    for c in checks:
+        other_f = c["other_frequency_hz"]
+        print(f"fold at {c['frequency_hz']:.4f} Hz cross-checked by {c['other_method']}: "
+              + (f"{other_f:.4f} Hz (relative difference {c['relative_difference']:.1e}, "
+                 f"{c['note']})" if other_f is not None else c["note"]))
     if branch.info["stop_reason"] != "left the parameter interval":
         print(f"warning: the branch stopped before {args.stop:g} Hz: "
               f"{branch.info['stop_reason']}. Try a smaller --ds or a larger --max-points.")

@@ -2,8 +2,14 @@
 
 import time
 
-from ._common import CLIError, add_params_args, load_params_from_args, out_dir, save_figure, \
-    write_json
+from ._common import (
+    CLIError,
+    add_params_args,
+    load_params_from_args,
+    out_dir,
+    save_figure,
+    write_json,
+)
 
 
 def register(sub) -> None:
@@ -91,9 +97,14 @@ def _design_error(exc):
 
 
 def run_sensitivity(args) -> int:
-    from ..design import (DESIGN_PARAMETERS, crosscheck_markdown,
-                          finite_difference_sensitivities, get_metric, paper_crosscheck,
-                          sensitivities)
+    from ..design import (
+        DESIGN_PARAMETERS,
+        crosscheck_markdown,
+        finite_difference_sensitivities,
+        get_metric,
+        paper_crosscheck,
+        sensitivities,
+    )
     from ..plotting import tornado
 
     params = load_params_from_args(args)

@@ -4,8 +4,14 @@ import sys
 import time
 from pathlib import Path
 
-from ._common import CLIError, add_params_args, load_params_from_args, out_dir, save_figure, \
-    write_json
+from ._common import (
+    CLIError,
+    add_params_args,
+    load_params_from_args,
+    out_dir,
+    save_figure,
+    write_json,
+)
 
 
 def register(sub) -> None:

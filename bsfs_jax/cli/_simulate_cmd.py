@@ -6,8 +6,14 @@ import time
 
 import numpy as np
 
-from ._common import CLIError, add_params_args, load_params_from_args, out_dir, save_figure, \
-    write_json
+from ._common import (
+    CLIError,
+    add_params_args,
+    load_params_from_args,
+    out_dir,
+    save_figure,
+    write_json,
+)
 
 
 def register(sub) -> None:
@@ -62,8 +68,8 @@ def _report_fn():
     """One jitted function for everything reported besides the trajectory (built once)."""
     import equinox as eqx
 
+    from ..machine import modes
     from ..model import build_system
-    from ..solvers import modes
 
     @eqx.filter_jit
     def report(params, static_force):
@@ -90,9 +96,9 @@ def _thermal_dict(system):
 def run_simulate(args) -> int:
     import bsfs_jax
 
+    from ..machine import simulate
     from ..params import params_summary
     from ..plotting import response_figure, trajectory_spectrum
-    from ..solvers import simulate
 
     if not args.frequency > 0:
         raise CLIError(f"--frequency must be positive, got {args.frequency}")
@@ -221,5 +227,6 @@ def run_modes(args) -> int:
     print(f"thermal: {'on' if params.thermal.enabled else 'off'} at "
           f"{float(params.thermal.speed_rpm):g} r/min; T_bearing/screw/nut = "
           + "/".join(f"{v:.1f}" for v in th["temperatures_c"].values())
-          + f" C; offsets D_n = {th['nut_offset_um']:.3f} um, D_b = {th['bearing_offset_um']:.3f} um")
+          + f" C; offsets D_n = {th['nut_offset_um']:.3f} um, "
+            f"D_b = {th['bearing_offset_um']:.3f} um")
     return 0

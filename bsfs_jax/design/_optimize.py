@@ -26,8 +26,14 @@ import optimistix as optx
 from ..params import BallScrewParams, lookup_key, validate
 from ._metrics import get_metric, static_stiffness
 from ._orbit import OrbitSettings
-from ._sensitivity import (_check_finite, check_parameter_names, compiled, operating_point,
-                           parameter_values, with_values)
+from ._sensitivity import (
+    _check_finite,
+    check_parameter_names,
+    compiled,
+    operating_point,
+    parameter_values,
+    with_values,
+)
 
 PENALTIES = (1e2, 1e4, 1e6)
 CONSTRAINT_TOL = 1e-3
@@ -103,7 +109,7 @@ def _objective(metric_name: str, names: tuple, settings: OrbitSettings):
     def objective(z, args):
         params, op, lo, hi, m0, k_min, rho = args
         p = with_values(params, names, theta_of(z, lo, hi))
-        value = metric.fn(p, op, settings)
+        value = metric.fn(p, op, settings, None)
         violation = jnp.maximum(0.0, 1.0 - static_stiffness(p) / k_min)
         return sign * value / jnp.abs(m0) + rho * violation**2
 
@@ -149,10 +155,16 @@ def optimize(metric_name: str, params: BallScrewParams, vary, bounds: dict | Non
     z0 = np.log(frac / (1 - frac))
     theta_start = lo + (hi - lo) * frac
 
+    if metric.locate is not None:
+        raise ValueError(
+            f"metric '{metric.name}' needs a continuation run per evaluation (a host-side "
+            "search), which the jitted optimiser cannot call; optimise 'frf_peak' (the "
+            "linear resonance peak) or 'amplitude' at the resonance frequency instead, or "
+            "scan candidates with `sensitivities`")
     theta_of, solve = _objective(metric.name, names, settings)
     start_params = with_values(params, names, jnp.asarray(theta_start))
     value_fn = compiled(metric.name, names, settings)[0]
-    m0 = float(value_fn(jnp.asarray(theta_start), params, op))
+    m0 = float(value_fn(jnp.asarray(theta_start), params, op, None))
     _check_finite(m0, metric, op)
     k0 = float(static_stiffness(start_params))
     k_min = (min_stiffness_n_per_um * 1e6) if min_stiffness_n_per_um else 1e-30
@@ -170,7 +182,7 @@ def optimize(metric_name: str, params: BallScrewParams, vary, bounds: dict | Non
             break
     theta = np.asarray(theta_of(z, jnp.asarray(lo), jnp.asarray(hi)))
     opt_params = validate(with_values(params, names, jnp.asarray(theta)), source="optimum")
-    m_opt = float(value_fn(jnp.asarray(theta), params, op))
+    m_opt = float(value_fn(jnp.asarray(theta), params, op, None))
     _check_finite(m_opt, metric, op)
     k_opt = float(static_stiffness(opt_params))
     sign = 1.0 if metric.direction == "min" else -1.0
@@ -201,8 +213,8 @@ def verify_by_simulation(metric_name: str, params: BallScrewParams, *, frequency
 
     Returns {"quantity", "model", "simulated", "relative_difference", "checked", ...}.
     """
+    from ..machine import modes, simulate
     from ..model import build_system
-    from ..solvers import modes, simulate
     from ._metrics import frc_peak_location, frf_peak_frequency, orbit_amplitude
 
     metric = get_metric(metric_name)

@@ -84,15 +84,30 @@ def with_values(params: BallScrewParams, names, theta) -> BallScrewParams:
 def compiled(metric_name: str, names: tuple, settings: OrbitSettings):
     """(value_fn, value_and_grad_fn), each jitted once per (metric, names, settings).
 
-    Both take (theta [file units], params, op) and return the metric in SI units; reuse
-    them with different arrays (no recompilation).
+    Both take (theta [file units], params, op, hint) and return the metric in SI units;
+    reuse them with different arrays (no recompilation). `hint` is what `locate_hint`
+    found on the host (the located FRC peak) or None.
     """
     metric = get_metric(metric_name)
 
-    def value(theta, params, op):
-        return metric.fn(with_values(params, names, theta), op, settings)
+    def value(theta, params, op, hint=None):
+        return metric.fn(with_values(params, names, theta), op, settings, hint)
 
     return eqx.filter_jit(value), eqx.filter_jit(jax.value_and_grad(value))
+
+
+def locate_hint(metric: Metric, params: BallScrewParams, op, settings):
+    """The host-side search a metric needs before its traced evaluation (None if none).
+
+    Raises ValueError naming the metric and the cause when the search fails."""
+    if metric.locate is None:
+        return None
+    from ..solvers import SolverError
+
+    try:
+        return metric.locate(params, op, settings)
+    except SolverError as exc:
+        raise FloatingPointError(f"metric '{metric.name}': {exc}") from None
 
 
 def operating_point(metric: Metric, frequency_hz=None, force_n=None) -> OperatingPoint:
@@ -128,7 +143,8 @@ def evaluate(metric_name: str, params: BallScrewParams, *, frequency_hz=None, fo
     op = operating_point(metric, frequency_hz, force_n)
     value_fn, _ = compiled(metric.name, ("nut.preload_n",), settings)
     theta = jnp.asarray(parameter_values(params, ("nut.preload_n",)))
-    value = float(value_fn(theta, params, op))
+    hint = locate_hint(metric, params, op, settings)
+    value = float(value_fn(theta, params, op, hint))
     _check_finite(value, metric, op)
     return value * metric.scale
 
@@ -194,7 +210,8 @@ def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAME
     op = operating_point(metric, frequency_hz, force_n)
     theta = parameter_values(params, names)
     _, value_and_grad = compiled(metric.name, names, settings)
-    value, grad = value_and_grad(jnp.asarray(theta), params, op)
+    hint = locate_hint(metric, params, op, settings)
+    value, grad = value_and_grad(jnp.asarray(theta), params, op, hint)
     value, grad = float(value), np.asarray(grad)
     _check_finite(value, metric, op)
     _check_finite(grad, metric, op, what="gradient of")
@@ -212,15 +229,31 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     op = operating_point(metric, frequency_hz, force_n)
     theta = parameter_values(params, names)
     value_fn, _ = compiled(metric.name, names, settings)
-    value = float(value_fn(jnp.asarray(theta), params, op))
+    hint0 = locate_hint(metric, params, op, settings)
+    if hint0 is not None and hasattr(hint0, "method"):
+        # Every perturbed search uses the nominal discretisation (method and harmonic
+        # count): a change of either between two evaluations would swamp the quotient.
+        if hasattr(hint0.method, "harmonics"):
+            h = int(hint0.method.harmonics)
+            settings = dataclasses.replace(settings, frc_method="hb", frc_harmonics=h,
+                                           frc_max_harmonics=h, frc_tol=1.0)
+        else:
+            settings = dataclasses.replace(settings, frc_method="shooting")
+        value_fn, _ = compiled(metric.name, names, settings)
+
+    def at(th):  # a metric with a host-side search (the FRC peak) searches again
+        p = with_values(params, names, jnp.asarray(th))
+        return float(value_fn(jnp.asarray(th), params, op, locate_hint(metric, p, op,
+                                                                        settings)))
+
+    value = at(theta)
     grad = np.zeros(len(names))
     for i in range(len(names)):
         h = rel_step * max(abs(theta[i]), 1e-12)
         up, down = theta.copy(), theta.copy()
         up[i] += h
         down[i] -= h
-        grad[i] = (float(value_fn(jnp.asarray(up), params, op))
-                   - float(value_fn(jnp.asarray(down), params, op))) / (2 * h)
+        grad[i] = (at(up) - at(down)) / (2 * h)
     _check_finite(value, metric, op)
     _check_finite(grad, metric, op, what="finite-difference gradient of")
     return _result(metric, op, names, theta, value, grad, f"central FD (rel. step {rel_step:g})")

@@ -38,4 +38,5 @@ class HarmonicForcing(eqx.Module):
     def __call__(self, t):
         k = jnp.arange(1, self.cos_coeffs.shape[-1] + 1)
         arg = 2.0 * jnp.pi * self.frequency * k * t
-        return self.offset + jnp.sum(self.cos_coeffs * jnp.cos(arg) + self.sin_coeffs * jnp.sin(arg))
+        return self.offset + jnp.sum(self.cos_coeffs * jnp.cos(arg)
+                                     + self.sin_coeffs * jnp.sin(arg))

@@ -82,7 +82,8 @@ def judge_monotone_growth(amps, paper_amps):
     paper_gain = paper_amps[-1] / paper_amps[0] - 1.0
     text = " / ".join(f"{a * 1e6:.2f}" for a in amps) + " um"
     if growing and gain > 0.5 * paper_gain:
-        return REPRODUCED, f"{text}: grows with speed (+{100 * gain:.1f} %, paper +{100 * paper_gain:.0f} %)"
+        return REPRODUCED, (f"{text}: grows with speed (+{100 * gain:.1f} %, paper "
+                            f"+{100 * paper_gain:.0f} %)")
     if growing:
         return PARTLY, (f"{text}: grows with speed as in the paper, but by +{100 * gain:.1f} % "
                         f"instead of +{100 * paper_gain:.0f} %")

@@ -25,10 +25,11 @@ from ..analysis import (
     load_sweep,
     sweep,
 )
-from ._judge import point_class, subharmonic_fraction
+from ..machine import modes, simulate
 from ..model import Sinusoid, build_system, vector_field
 from ..params import preset as load_preset
-from ..solvers import SolverSettings, modes, simulate
+from ..solvers import SolverSettings, result_codes, result_from_codes, result_text
+from ._judge import point_class, subharmonic_fraction
 
 SPEEDS_RPM = (1000.0, 2000.0, 3000.0)
 PRELOADS_N = (1000.0, 1500.0, 2000.0)
@@ -122,7 +123,8 @@ def _steady(system, frequency_hz, force_n, s: ReproduceSettings, *, periods=None
 def _traj_numbers(traj, dof=2) -> dict:
     x = np.asarray(traj.displacement)[:, dof]
     return {
-        "status": int(traj.status),
+        "status": int(result_codes(traj.result)),
+        "status_message": str(result_text(traj.result)),
         "amplitude_m": float(0.5 * (x.max() - x.min())),
         "max_abs_m": float(np.abs(x).max()),
         "mean_m": float(x.mean()),
@@ -182,13 +184,13 @@ def motion_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
         # Drop the first quarter of the intervals: the tangent vector starts in an arbitrary
         # direction, and its alignment transient would bias a short average upwards.
         logs = np.asarray(lyap.log_growth)
-        lam = float(np.mean(logs[len(logs) // 4:]) / period) if int(lyap.status) == 0 \
+        lam = float(np.mean(logs[len(logs) // 4:]) / period) if bool(lyap.ok) \
             else float("nan")
         strobe = np.asarray(traj.stroboscopic())
         state = np.asarray(traj.state)
         x = state[:, 2]
         motion = classify_motion(strobe, signal=x[:-1], lyapunov_per_period=lam * period,
-                                 scale=0.5 * np.ptp(state, axis=0), status=row["status"],
+                                 scale=0.5 * np.ptp(state, axis=0), result=traj.result,
                                  settings=ClassifierSettings(tol=2e-3))
         freqs, amp = amplitude_spectrum(x[:-1], period / s.samples_per_period, window="rect")
         sub = subharmonic_fraction(amp, freqs * period, guard=0)
@@ -221,10 +223,11 @@ def diameter_experiments(params, s: ReproduceSettings) -> dict:
             # Amplitudes at the forcing frequency and its 2nd..4th multiples.
             idx = [int(np.argmin(np.abs(freqs - k * f))) for k in (1, 2, 3, 4)]
             harmonics.append([float(amp[i]) for i in idx])
-            status.append(int(traj.status))
+            status.append(int(result_codes(traj.result)))
         out[name] = {"values_mm": values, "freqs_hz": freqs, "spectra_m": np.array(spectra),
                      "amplitude_m": np.array(amps), "harmonics_m": np.array(harmonics),
-                     "status": np.array(status), "frequency_hz": f}
+                     "status": np.array(status), "frequency_hz": f,
+                     "status_messages": [str(result_text(result_from_codes(c))) for c in status]}
     return out
 
 
@@ -304,7 +307,8 @@ def exciter_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
         traj = _steady(system, f, 100.0, s, periods=s.exciter_periods,
                        transient=s.exciter_transient)
         a = np.asarray(traj.acceleration)[:, 2]
-        out[f"{f:.0f}"] = {"frequency_hz": f, "status": int(traj.status),
+        out[f"{f:.0f}"] = {"frequency_hz": f, "status": int(result_codes(traj.result)),
+                           "status_message": str(result_text(traj.result)),
                            "acceleration_amplitude_m_s2": float(0.5 * np.ptp(a)),
                            "displacement_amplitude_m": float(0.5 * np.ptp(
                                np.asarray(traj.displacement)[:, 2]))}

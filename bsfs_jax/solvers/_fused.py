@@ -17,6 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._results import RESULTS
+
 # Dormand & Prince (1980) 5(4) tableau.
 _C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0])
 _A = (
@@ -39,14 +41,13 @@ def _rms(x):
 
 
 def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
-    """(ys at ts, status, num_steps) with status codes of `_integrate` (0 = ok).
+    """(ys at ts, result, num_steps): `result` a `RESULTS` item (`successful`,
+    `max_steps_reached`, `non_finite` or `step_size_failed`).
 
     An outer `lax.scan` over the save times runs an inner `while_loop` of adaptive steps up
     to each one (the last step clipped to land on it), so no large output buffer is carried
     through the stepping loop.
     """
-    from ._integrate import MAX_STEPS, NON_FINITE, OK, SOLVER_FAILED
-
     ts = jnp.asarray(ts, dtype=float)
     y0 = jnp.asarray(y0, dtype=float)
     t0 = jnp.asarray(t0, dtype=float)
@@ -59,7 +60,7 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
     h0 = jnp.minimum(h0, t1 - t0)
 
     def step(s, target):
-        t, y, h, k1, n, status = s
+        t, y, h, k1, n, result = s
         clipped = t + h >= target
         h_eff = jnp.where(clipped, target - t, h)
         ks = [k1]
@@ -79,17 +80,19 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
         h_new = jnp.where(accept & clipped, jnp.maximum(h_prop, jnp.minimum(h, h_prop * 10)),
                           h_prop)
         t_new = jnp.where(clipped, target, t + h_eff)
-        tiny = h_new < 1e-14 * jnp.maximum(jnp.abs(t), 1e-3)
-        status = jnp.where(tiny, jnp.where(jnp.all(jnp.isfinite(y)), SOLVER_FAILED, NON_FINITE),
-                           status)
-        status = jnp.where((n + 1 >= max_steps) & ~(accept & (t_new >= target)), MAX_STEPS,
-                           status)
+        # A step size that underflows, or is NaN (a non-finite start), ends the run.
+        tiny = ~(h_new >= 1e-14 * jnp.maximum(jnp.abs(t), 1e-3))
+        failure = RESULTS.where(jnp.all(jnp.isfinite(y)), RESULTS.step_size_failed,
+                                RESULTS.non_finite)
+        result = RESULTS.where(tiny, failure, result)
+        result = RESULTS.where((n + 1 >= max_steps) & ~(accept & (t_new >= target)),
+                               RESULTS.max_steps_reached, result)
         return (jnp.where(accept, t_new, t), jnp.where(accept, y_new, y), h_new,
-                jnp.where(accept, ks[6], k1), n + 1, status)
+                jnp.where(accept, ks[6], k1), n + 1, result)
 
     def advance(s, target):
         """Step until t reaches `target` (or a failure)."""
-        return jax.lax.while_loop(lambda s: (s[0] < target) & (s[5] == OK),
+        return jax.lax.while_loop(lambda s: (s[0] < target) & (s[5] == RESULTS.successful),
                                   lambda s: step(s, target), s)
 
     def save(s, t_save):
@@ -97,11 +100,13 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
         valid = t_save <= t1 + eps
         target = jnp.clip(t_save, t0, t1)
         s = advance(s, target)
-        y = jnp.where(valid & (s[5] == OK), s[1], jnp.nan)
+        y = jnp.where(valid & (s[5] == RESULTS.successful), s[1], jnp.nan)
         return s, y
 
-    state = (t0, y0, h0, f0, jnp.asarray(0), jnp.asarray(OK))
+    state = (t0, y0, h0, f0, jnp.asarray(0), RESULTS.successful)
     state, ys = jax.lax.scan(save, state, ts)
     state = advance(state, t1)
-    status = jnp.where((state[5] == OK) & jnp.any(ts > t1 + eps), SOLVER_FAILED, state[5])
-    return ys, status, state[4]
+    # Save times past t1 cannot be reached.
+    result = RESULTS.where((state[5] == RESULTS.successful) & jnp.any(ts > t1 + eps),
+                           RESULTS.step_size_failed, state[5])
+    return ys, result, state[4]

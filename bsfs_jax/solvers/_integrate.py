@@ -2,8 +2,9 @@
 
 The solvers and analyses of this package are generic: the BSFS, Duffing and Lorenz
 systems all go through `integrate`. Failures never pass silently: each run returns a
-status code (see `STATUS_MESSAGES`), and `check_status` turns a bad one into a
-`SolverError` that names the cause, the run's settings and what to try.
+`RESULTS` item (see `_results.py`; `RESULTS.successful` is the only good one), a concrete
+failure raises a `SolverError` that names the cause, the run's settings and what to try
+(`throw=True`, or `check_result` afterwards), and a failed run's states are NaN.
 """
 
 import dataclasses
@@ -14,16 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-OK, MAX_STEPS, NON_FINITE, SOLVER_FAILED = 0, 1, 2, 3
-STATUS_MESSAGES = {
-    OK: "successful",
-    MAX_STEPS: "the maximum number of solver steps was reached; raise max_steps, shorten "
-    "the horizon, or loosen rtol/atol",
-    NON_FINITE: "the state became non-finite (NaN or inf); the response diverged, check "
-    "for unphysical parameters or a too-large force",
-    SOLVER_FAILED: "the step-size controller failed (step size underflow or a non-finite "
-    "step); loosen rtol/atol or check the parameters",
-}
+from ._fused import integrate_fused
+from ._results import RESULTS, result_codes, result_message
 
 
 class SolverError(RuntimeError):
@@ -72,21 +65,31 @@ def make_solver(name: str):
 
 
 class IntegrationResult(eqx.Module):
-    """States at the requested times, status code and number of accepted+rejected steps."""
+    """The outcome of `integrate`.
+
+    - `ts`: the save times; `ys`: the states at `ts` (NaN where the run failed);
+    - `result`: a `RESULTS` item (`RESULTS.successful`, `max_steps_reached`, `non_finite`,
+      `step_size_failed`, or `invalid_input` for a non-finite `y0`; batched under `vmap`);
+    - `num_steps`: accepted + rejected steps.
+    """
 
     ts: jax.Array
     ys: jax.Array
-    status: jax.Array
+    result: RESULTS
     num_steps: jax.Array
+
+    @property
+    def ok(self) -> jax.Array:
+        """Bool array: `result == RESULTS.successful`."""
+        return self.result == RESULTS.successful
 
 
 def integrate(vector_field, y0, args, t0, t1, ts, settings: SolverSettings = SolverSettings(),
-              *, adjoint=None, progress: bool = False) -> IntegrationResult:
+              *, adjoint=None, progress: bool = False, throw: bool = True) -> IntegrationResult:
     """Integrate y' = f(t, y, args) from t0 to t1, saving at `ts` (inside [t0, t1]).
 
-    Pure and traceable (jit/vmap/grad). Never raises on a failed solve: the result
-    carries `status` (0 = ok) and failed or non-finite states are replaced by NaN so that
-    they cannot be mistaken for data. Use `check_status` outside of transforms.
+    Pure and traceable (jit/vmap/grad). The result carries a `RESULTS` item, and failed or
+    non-finite states are replaced by NaN so that they cannot be mistaken for data.
 
     **Arguments:**
     - `vector_field`: f(t, y, args) -> dy/dt.
@@ -97,14 +100,29 @@ def integrate(vector_field, y0, args, t0, t1, ts, settings: SolverSettings = Sol
     - `adjoint`: a diffrax adjoint; default `RecursiveCheckpointAdjoint` (reverse mode).
       Use `diffrax.ForwardMode()` for `jax.jacfwd` / Levenberg-Marquardt.
     - `progress`: show a tqdm progress bar (host callback; for CLI runs).
+    - `throw`: raise `SolverError` (naming the cause and the settings) when the result is
+      concrete and not successful. Under jit/vmap (a traced result) nothing is raised:
+      inspect `result` yourself.
     """
     if settings.solver == FUSED:
-        from ._fused import integrate_fused
-
-        ys, status, steps = integrate_fused(vector_field, y0, args, t0, t1, ts, settings.rtol,
+        ys, result, steps = integrate_fused(vector_field, y0, args, t0, t1, ts, settings.rtol,
                                             settings.atol, settings.max_steps)
-        return IntegrationResult(jnp.asarray(ts), jnp.where(status == OK, ys, jnp.nan), status,
-                                 steps)
+        ts_out = jnp.asarray(ts)
+    else:
+        ts_out, ys, result, steps = _integrate_diffrax(vector_field, y0, args, t0, t1, ts,
+                                                       settings, adjoint, progress)
+    # A non-finite initial state is the caller's error, whatever the loop made of it.
+    result = RESULTS.where(jnp.all(jnp.isfinite(jnp.asarray(y0))), result,
+                           RESULTS.invalid_input)
+    ys = jnp.where(result == RESULTS.successful, ys, jnp.nan)
+    out = IntegrationResult(ts_out, ys, result, steps)
+    if throw:
+        check_result(out.result, settings)
+    return out
+
+
+def _integrate_diffrax(vector_field, y0, args, t0, t1, ts, settings, adjoint, progress):
+    """(ts, ys, result, num_steps) of diffrax's diffeqsolve, failures mapped to `RESULTS`."""
     solver = make_solver(settings.solver)
     controller = dfx.PIDController(rtol=settings.rtol, atol=settings.atol)
     kwargs = {}
@@ -117,14 +135,13 @@ def integrate(vector_field, y0, args, t0, t1, ts, settings: SolverSettings = Sol
         throw=False, **kwargs,
     )
     finite = jnp.all(jnp.isfinite(sol.ys))
-    status = jnp.where(
-        sol.result == dfx.RESULTS.successful,
-        jnp.where(finite, OK, NON_FINITE),
-        jnp.where(sol.result == dfx.RESULTS.max_steps_reached, MAX_STEPS,
-                  jnp.where(finite, SOLVER_FAILED, NON_FINITE)),
-    )
-    ys = jnp.where(status == OK, sol.ys, jnp.nan)
-    return IntegrationResult(sol.ts, ys, status, sol.stats["num_steps"])
+    result = RESULTS.promote(sol.result)
+    # Any other failure of diffrax's loop is the step-size controller giving up.
+    failed = RESULTS.where(result == RESULTS.max_steps_reached, result,
+                           RESULTS.where(finite, RESULTS.step_size_failed, RESULTS.non_finite))
+    result = RESULTS.where(result == RESULTS.successful,
+                           RESULTS.where(finite, RESULTS.successful, RESULTS.non_finite), failed)
+    return sol.ts, sol.ys, result, sol.stats["num_steps"]
 
 
 def is_concrete(tree) -> bool:
@@ -132,20 +149,29 @@ def is_concrete(tree) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
-def check_status(status, settings: SolverSettings, context: str = ""):
-    """Raise `SolverError` if any entry of `status` is not OK (concrete values only).
+def check_result(result, settings: SolverSettings, context: str = ""):
+    """Raise `SolverError` if any entry of a (possibly batched) `RESULTS` item is not
+    successful (concrete values only).
 
-    Under `jit`/`vmap` (traced status) this returns unchanged: inspect `status` yourself
+    Under `jit`/`vmap` (a traced result) this returns unchanged: inspect `result` yourself
     (a failed run's states are NaN).
+
+    **Arguments:**
+    - `result`: a `RESULTS` item, e.g. `IntegrationResult.result` or `Trajectory.result`.
+    - `settings`: the `SolverSettings` of the run (named in the message).
+    - `context`: what was run (excitation, horizon), named in the message.
     """
-    if not is_concrete(status):
+    if not is_concrete(result):
         return
-    codes = np.atleast_1d(np.asarray(status))
-    bad = np.flatnonzero(codes != OK)
+    codes = np.atleast_1d(result_codes(result)).ravel()
+    bad = np.flatnonzero(codes != result_codes(RESULTS.successful))
     if bad.size:
-        code = int(codes[bad[0]])
+        first = jax.tree_util.tree_map(lambda v: np.asarray(np.ravel(v)[bad[0]]), result)
         where = f" (first of {bad.size} failed runs: index {bad[0]})" if codes.size > 1 else ""
+        message = result_message(first)
+        if bool(first == RESULTS.max_steps_reached):
+            message = f"{message.rstrip('.')} (or shorten the horizon, or loosen rtol/atol)"
         raise SolverError(
-            f"simulation failed{where}: {STATUS_MESSAGES.get(code, f'status {code}')}. "
+            f"simulation failed{where}: {message.rstrip('.')}. "
             f"Run settings: {context}{'; ' if context else ''}{settings.describe()}."
         )

@@ -6,17 +6,32 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from ..model import restoring_forces
+from ..solvers import RESULTS, SolverError, is_concrete, result_message
 from ._simulate import as_system
 
 _X_SCALE = 1e-6  # solve in micrometres: well scaled for Newton
 _F_SCALE = 1e3  # and kilonewtons
+_MAX_STEPS = 100
 
 
-def equilibrium(model, static_force_n=0.0):
+def _tolerance() -> float:
+    """Newton's rtol = atol [um, kN]: 1e-12 in 64-bit floats; in 32-bit 1e3 ulps (1.2e-4),
+    above the round-off of the preloaded pairs' forces, which cancel at equilibrium."""
+    return max(1e-12, 1e3 * float(jnp.finfo(jnp.result_type(float)).eps))
+
+
+def equilibrium(model, static_force_n=0.0, *, throw: bool = True):
     """Static displacements (x_b, x_s, x_n) [m] under a constant axial force on the nut.
 
     Solves the restoring forces of Eq. 31 = (0, 0, P0) by Newton (optimistix), with the
     thermal offsets in place. With P0 = 0 and symmetric pairs this is x = 0.
+
+    **Arguments:**
+    - `model`: `BallScrewParams` or a built `System`.
+    - `static_force_n`: the constant axial force P0 on the nut [N].
+    - `throw`: raise `SolverError` (naming the cause) when the Newton solve fails and the
+      result is concrete. Under jit/vmap nothing is raised and the last iterate is
+      returned.
     """
     system = as_system(model)
 
@@ -24,10 +39,33 @@ def equilibrium(model, static_force_n=0.0):
         f = restoring_forces(system, z * _X_SCALE, jnp.zeros(3))
         return (f - jnp.stack([0.0, 0.0, p0])) / _F_SCALE
 
-    sol = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), jnp.zeros(3),
+    tol = _tolerance()
+    sol = optx.root_find(residual, optx.Newton(rtol=tol, atol=tol), jnp.zeros(3),
                          args=jnp.asarray(static_force_n, dtype=float), throw=False,
-                         max_steps=100)
+                         max_steps=_MAX_STEPS)
+    if throw:
+        _check(sol, static_force_n)
     return sol.value * _X_SCALE
+
+
+def _check(sol, static_force_n):
+    """Raise `SolverError` for a concrete, failed Newton solve of `equilibrium`."""
+    if not is_concrete((sol.result, sol.value)):
+        return
+    result = RESULTS.promote(sol.result)
+    finite = jnp.all(jnp.isfinite(sol.value))
+    failed = RESULTS.where(result == RESULTS.singular, RESULTS.singular_jacobian,
+                           RESULTS.newton_failed)
+    failed = RESULTS.where(finite, failed, RESULTS.non_finite)
+    result = RESULTS.where((result == RESULTS.successful) & finite, RESULTS.successful, failed)
+    if not bool(result == RESULTS.successful):
+        try:
+            p0 = f"{float(static_force_n):g} N"
+        except (TypeError, ValueError):
+            p0 = "the given force"
+        raise SolverError(
+            f"static equilibrium under P0 = {p0} failed: {result_message(result)}. Newton "
+            f"settings: rtol = atol = {_tolerance():g}, max_steps={_MAX_STEPS}.")
 
 
 class Modes(eqx.Module):
@@ -54,18 +92,24 @@ class Modes(eqx.Module):
         return 1.0 / jnp.linalg.inv(self.stiffness)[2, 2]
 
 
-def linearise(model, static_force_n=0.0):
-    """(K, C, M, x_eq): tangent stiffness and damping matrices about the equilibrium."""
+def linearise(model, static_force_n=0.0, *, throw: bool = True):
+    """(K, C, M, x_eq): tangent stiffness and damping matrices about the equilibrium.
+
+    `throw` as in `equilibrium`.
+    """
     system = as_system(model)
-    x_eq = equilibrium(system, static_force_n)
+    x_eq = equilibrium(system, static_force_n, throw=throw)
     k = jax.jacfwd(lambda x: restoring_forces(system, x, jnp.zeros(3)))(x_eq)
     c = jax.jacfwd(lambda v: restoring_forces(system, x_eq, v))(jnp.zeros(3))
     return k, c, system.mass, x_eq
 
 
-def modes(model, static_force_n=0.0) -> Modes:
-    """Natural frequencies and mode shapes linearised about the static equilibrium."""
-    k, c, m, x_eq = linearise(model, static_force_n)
+def modes(model, static_force_n=0.0, *, throw: bool = True) -> Modes:
+    """Natural frequencies and mode shapes linearised about the static equilibrium.
+
+    `throw` as in `equilibrium`.
+    """
+    k, c, m, x_eq = linearise(model, static_force_n, throw=throw)
     inv_sqrt_m = 1.0 / jnp.sqrt(m)
     k_sym = k * inv_sqrt_m[:, None] * inv_sqrt_m[None, :]
     k_sym = 0.5 * (k_sym + k_sym.T)
@@ -79,12 +123,13 @@ def modes(model, static_force_n=0.0) -> Modes:
     return Modes(omega / (2 * jnp.pi), shapes, zeta, k, c, m, x_eq)
 
 
-def linear_frf(model, frequencies_hz, static_force_n=0.0):
+def linear_frf(model, frequencies_hz, static_force_n=0.0, *, throw: bool = True):
     """Complex receptance x_j / P [m/N] of the linearised system, shape (len(f), 3).
 
-    H(w) = (K - w^2 M + i w C)^(-1) e_nut; the small-force limit of Eq. 31.
+    H(w) = (K - w^2 M + i w C)^(-1) e_nut; the small-force limit of Eq. 31. `throw` as in
+    `equilibrium`.
     """
-    k, c, m, _ = linearise(model, static_force_n)
+    k, c, m, _ = linearise(model, static_force_n, throw=throw)
     omega = 2 * jnp.pi * jnp.atleast_1d(jnp.asarray(frequencies_hz, dtype=float))
     rhs = jnp.array([0.0, 0.0, 1.0], dtype=complex)
 

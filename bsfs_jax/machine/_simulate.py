@@ -8,7 +8,7 @@ import jax.numpy as jnp
 
 from ..model import Sinusoid, System, accelerations, build_system, joint_forces, vector_field
 from ..params import BallScrewParams, validate
-from ._integrate import SolverSettings, check_status, integrate
+from ..solvers import RESULTS, SolverSettings, check_result, integrate
 
 
 class Trajectory(eqx.Module):
@@ -22,7 +22,8 @@ class Trajectory(eqx.Module):
       (bearing, screw, nut);
     - `joint_force` [N]: columns (F_b, F_s, F_n) of the bearing, screw and nut joints;
     - `force` [N]: the external force on the nut;
-    - `status` (0 = ok; see `STATUS_MESSAGES`), `num_steps`, `period` [s].
+    - `result`: a `RESULTS` item (`RESULTS.successful` or the cause of the failure; the
+      states of a failed run are NaN), `num_steps`, `period` [s].
     """
 
     t: jax.Array
@@ -31,10 +32,15 @@ class Trajectory(eqx.Module):
     acceleration: jax.Array
     joint_force: jax.Array
     force: jax.Array
-    status: jax.Array
+    result: RESULTS
     num_steps: jax.Array
     period: jax.Array
     samples_per_period: int = eqx.field(static=True)
+
+    @property
+    def ok(self) -> jax.Array:
+        """Bool array: `result == RESULTS.successful`."""
+        return self.result == RESULTS.successful
 
     @property
     def state(self):
@@ -94,11 +100,11 @@ def simulate_core(model, forcing, y0=None, horizon: Horizon = Horizon(),
     ts = ts.at[-1].set(t_end)
     y0 = jnp.zeros(6) if y0 is None else jnp.asarray(y0, dtype=float)
     res = integrate(vector_field, y0, (system, forcing), 0.0, t_end, ts, settings,
-                    adjoint=adjoint, progress=progress)
+                    adjoint=adjoint, progress=progress, throw=False)
     x, v = res.ys[:, :3], res.ys[:, 3:]
     force = jax.vmap(forcing)(ts)
     acc = accelerations(system, x, v, force)
-    return Trajectory(ts, x, v, acc, joint_forces(system, x), force, res.status,
+    return Trajectory(ts, x, v, acc, joint_forces(system, x), force, res.result,
                       res.num_steps, period, spp)
 
 
@@ -126,7 +132,7 @@ def simulate(model, *, frequency_hz=None, force_n=None, forcing=None, y0=None,
 
     **Returns:** a `Trajectory`. With `throw=True` (default) a failed solve (max steps,
     non-finite state, step-size failure) raises `SolverError` naming the cause and the
-    settings; under jit/vmap pass `throw=False` and check `trajectory.status`.
+    settings; under jit/vmap pass `throw=False` and check `trajectory.result` (or `.ok`).
     """
     if forcing is None:
         if frequency_hz is None or force_n is None:
@@ -143,7 +149,7 @@ def simulate(model, *, frequency_hz=None, force_n=None, forcing=None, y0=None,
     if throw:
         context = (f"excitation {_describe(forcing)}, {horizon.transient_periods} transient + "
                    f"{horizon.periods} saved periods")
-        check_status(traj.status, settings, context)
+        check_result(traj.result, settings, context)
     return traj
 
 

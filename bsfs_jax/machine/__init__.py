@@ -1,0 +1,30 @@
+"""The ball screw on the generic solvers: simulation, static equilibrium, modes, linear FRF.
+
+This layer sits between `solvers` (generic in the vector field) and `analysis`: it knows
+the BSFS (`params`, `physics`, `model`) and runs it through `solvers.integrate` and
+optimistix.
+
+- `simulate` (checked, jitted), `simulate_core` (traceable), `Trajectory`, `Horizon`,
+  `as_system`;
+- `equilibrium`, `linearise`, `modes`, `Modes`, `linear_frf`;
+- `BSFSFamily`, `bsfs_family`: the one family protocol p -> (args, period) for
+  continuation, orbit metrics and sweeps; `BSFS_SCALE`.
+"""
+
+from ._equilibrium import Modes as Modes
+from ._equilibrium import equilibrium as equilibrium
+from ._equilibrium import linear_frf as linear_frf
+from ._equilibrium import linearise as linearise
+from ._equilibrium import modes as modes
+from ._families import BSFS_SCALE as BSFS_SCALE
+from ._families import FORCE as FORCE
+from ._families import FREQUENCY as FREQUENCY
+from ._families import BSFSFamily as BSFSFamily
+from ._families import bsfs_family as bsfs_family
+from ._families import bsfs_parameter_family as bsfs_parameter_family
+from ._families import parameter_unit as parameter_unit
+from ._simulate import Horizon as Horizon
+from ._simulate import Trajectory as Trajectory
+from ._simulate import as_system as as_system
+from ._simulate import simulate as simulate
+from ._simulate import simulate_core as simulate_core

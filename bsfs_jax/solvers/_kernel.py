@@ -1,0 +1,162 @@
+"""The continuation's jitted corrector: one function per (family, field, method)."""
+
+import collections
+import dataclasses
+import functools
+
+import diffrax as dfx
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._branch import HostPoint, as_host
+from ._harmonic import HarmonicBalance
+from ._newton import newton
+from ._orbit import orbit_amplitudes
+from ._results import RESULTS
+
+#: How many times the corrector has been traced (for recompile checks).
+TRACE_COUNTS: collections.Counter = collections.Counter()
+
+
+class CorrectedPoint(eqx.Module):
+    u: jax.Array
+    tangent: jax.Array
+    jacobian: jax.Array
+    lu: jax.Array
+    pivots: jax.Array
+    ok: jax.Array
+    residual: jax.Array
+    steps: jax.Array
+    monodromy: jax.Array
+    amplitudes: jax.Array
+    slope: jax.Array
+    error: jax.Array
+    state: jax.Array
+
+
+def family_residual(family, vector_field, method, scale, p_scale, n_periods, u,
+                    ode_adjoint=None):
+    """R(z; p) for u = (z, p / p_scale): the method's residual along the family."""
+    n = u.shape[0] - 1
+    args, period = family(u[n] * p_scale)
+    return method.residual(vector_field, u[:n], args, period, n_periods, scale, ode_adjoint)
+
+
+def family_amplitudes(family, vector_field, method, scale, p_scale, n_periods, u,
+                      ode_adjoint=None):
+    n = u.shape[0] - 1
+    args, period = family(u[n] * p_scale)
+    return orbit_amplitudes(method, vector_field, u[:n], args, period, n_periods, scale,
+                            ode_adjoint or dfx.ForwardMode())
+
+
+def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, max_iter,
+                  amplitude_index, u_pred, tangent, chord_lu):
+    TRACE_COUNTS["corrector"] += 1
+    n = u_pred.shape[0] - 1
+
+    def augmented(u, data):
+        u_p, t = data
+        r = family_residual(family, vector_field, method, scale, p_scale, n_periods, u)
+        return jnp.concatenate([r, jnp.dot(t, u - u_p)[None]])
+
+    sol = newton(augmented, u_pred, (u_pred, tangent), tol=tol, max_steps=max_iter,
+                 chord_lu=chord_lu)
+    u = sol.value
+    jac_r = sol.jacobian[:n]
+    # sol.jacobian = [R_u; tangent]: its LU gives the new tangent and starts the next
+    # corrector's chord iterations.
+    lu, piv = jax.scipy.linalg.lu_factor(sol.jacobian)
+    t_new = jax.scipy.linalg.lu_solve((lu, piv), jnp.zeros(n + 1).at[n].set(1.0))
+    t_new = t_new / jnp.linalg.norm(t_new)
+    args, period = family(u[n] * p_scale)
+    mono = method.monodromy(vector_field, u[:n], args, period, n_periods, scale, jac_r[:, :n])
+    amps, d_amps = jax.jvp(
+        lambda v: family_amplitudes(family, vector_field, method, scale, p_scale, n_periods,
+                                    v), (u,), (t_new,))
+    err = method.error_estimate(vector_field, u[:n], args, period, n_periods, scale,
+                                sol.residual)
+    ok = (sol.result == RESULTS.successful) & jnp.all(jnp.isfinite(t_new))
+    state = method.initial_state(u[:n], scale)
+    return CorrectedPoint(u, t_new, jnp.concatenate([jac_r, t_new[None, :]]), lu, piv, ok,
+                          sol.residual, sol.steps, mono, amps, d_amps[amplitude_index], err,
+                          state)
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(static_family, vector_field, method, n_periods, tol, max_iter, amplitude_index,
+              use_chord):
+    """The corrector jitted over arrays only (the static parts closed over), cached per
+    static structure: low dispatch overhead and no retrace across continuation runs."""
+    def fn(dynamic_family, scale, p_scale, u_pred, tangent, lu, pivots):
+        family = eqx.combine(dynamic_family, static_family)
+        return _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol,
+                             max_iter, amplitude_index, u_pred, tangent,
+                             (lu, pivots) if use_chord else None)
+
+    return jax.jit(fn)
+
+
+@dataclasses.dataclass
+class Kernel:
+    """Holds the static parts and calls the jitted corrector with array arguments."""
+
+    family: object
+    vector_field: object
+    method: object
+    scale: jax.Array
+    p_scale: float
+    n_periods: int
+    tol: float
+    max_newton: int
+    amplitude_index: int
+    calls: int = 0
+    _fn: object = None
+    _dyn: object = None
+    _no_chord: object = None
+
+    @property
+    def accurate_tol(self):
+        return self.method.error_tol if isinstance(self.method, HarmonicBalance) else None
+
+    def correct(self, u_pred, tangent, ds_used: float = 0.0, chord=None) -> HostPoint:
+        """Correct a predicted point; `chord` is a nearby point whose Newton matrix starts
+        the corrector as chord iterations (None: plain Newton)."""
+        self.calls += 1
+        u_pred = np.asarray(u_pred, dtype=float)
+        n = u_pred.shape[0]
+        use_chord = bool(getattr(self.method, "uses_chord", False))
+        if use_chord and chord is not None and chord.lu is not None and \
+                chord.lu[0].shape[0] == n:
+            lu, piv = chord.lu
+        else:  # no chord matrix: NaN makes the chord stage stop at once (same trace)
+            if self._no_chord is None or self._no_chord[0].shape[0] != n:
+                self._no_chord = (jnp.full((n, n), jnp.nan), jnp.arange(n, dtype=jnp.int32))
+            lu, piv = self._no_chord
+        if self._fn is None:
+            dyn, static = eqx.partition(self.family, eqx.is_array)
+            self._dyn = dyn
+            self._fn = _compiled(static, self.vector_field, self.method, int(self.n_periods),
+                                 float(self.tol), int(self.max_newton),
+                                 int(self.amplitude_index), use_chord)
+        pt = self._fn(self._dyn, self.scale, np.asarray(self.p_scale, dtype=float), u_pred,
+                      np.asarray(tangent, dtype=float), lu, piv)
+        return as_host(pt, self.accurate_tol, ds_used)
+
+    def with_method(self, method) -> "Kernel":
+        return dataclasses.replace(self, method=method, _fn=None, _dyn=None, _no_chord=None)
+
+    def convert(self, point: HostPoint) -> HostPoint:
+        """A point of the previous (smaller) harmonic count in this kernel's unknowns."""
+        d = int(np.asarray(self.scale).shape[0])
+        n_old = point.u.shape[0] - 1
+        h_old = (n_old // d - 1) // 2
+        old = self.method.with_harmonics(h_old)
+        u = np.concatenate([np.asarray(self.method.from_coefficients(old, point.u[:-1], d)),
+                            point.u[-1:]])
+        t = np.concatenate([np.asarray(self.method.from_coefficients(old, point.tangent[:-1],
+                                                                     d)), point.tangent[-1:]])
+        return dataclasses.replace(point, u=u, tangent=t / np.linalg.norm(t), jacobian=None,
+                                   lu=None)
