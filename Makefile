@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(BIN)/bsfs simulate --frequency 500 --force 5000 --out out/simulate
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python tests/run_each.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

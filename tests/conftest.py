@@ -3,8 +3,16 @@
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# One BLAS thread: jaxlib's CPU linear algebra calls LAPACK from scipy's OpenBLAS, whose
+# threads oversubscribe a small machine next to XLA's (a 199 x 199 LU measured 120 ms
+# instead of 1 ms on the 2-core CI machine under load).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
+if os.environ.get("BSFS_CACHE_DIR"):  # CI: share compiled programs across test processes
+    jax.config.update("jax_compilation_cache_dir", os.environ["BSFS_CACHE_DIR"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_numpy_rank_promotion", "raise")

@@ -133,7 +133,8 @@ class Kernel:
             lu, piv = chord.lu
         else:  # no chord matrix: NaN makes the chord stage stop at once (same trace)
             if self._no_chord is None or self._no_chord[0].shape[0] != n:
-                self._no_chord = (jnp.full((n, n), jnp.nan), jnp.arange(n, dtype=jnp.int32))
+                self._no_chord = (jnp.full((n, n), jnp.nan, dtype=float),
+                                  jnp.arange(n, dtype=jnp.int32))
             lu, piv = self._no_chord
         if self._fn is None:
             dyn, static = eqx.partition(self.family, eqx.is_array)
