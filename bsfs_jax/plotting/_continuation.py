@@ -51,7 +51,8 @@ def plot_continuation(branch, *, ax=None, x_scale: float = 1.0, y_scale: float =
              title: str | None = None, label: str | None = None, color: str = "tab:blue"):
     """Draw `branch.amplitude` against `branch.p`: stable solid, unstable dashed.
 
-    Bifurcations are marked by type. `x_scale`, `y_scale` convert the branch's units
+    Bifurcations are marked by type, the located amplitude peak (if any) by a triangle
+    with its value in the legend. `x_scale`, `y_scale` convert the branch's units
     (default: Hz and m -> µm). Draws into `ax` if given; returns the Figure.
     """
     import matplotlib.pyplot as plt
@@ -72,6 +73,10 @@ def plot_continuation(branch, *, ax=None, x_scale: float = 1.0, y_scale: float =
         ax.plot(bif.p * x_scale, bif.amplitude * y_scale, marker, color=mcolor, ms=7,
                 mfc="none", mew=1.8, label=None if bif.kind in drawn else text)
         drawn.add(bif.kind)
+    peak = getattr(branch, "peak", None)
+    if peak is not None:
+        ax.plot(peak.p * x_scale, peak.amplitude * y_scale, "v", color="k", ms=6,
+                label=f"peak {peak.amplitude * y_scale:.4g} at {peak.p * x_scale:.5g}")
     ax.set_xlabel(x_label)
     ax.set_ylabel(y_label)
     if title:
