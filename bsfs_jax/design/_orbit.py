@@ -26,7 +26,6 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ..machine import BSFSFamily, bsfs_family, linear_frf, modes
 from ..model import Sinusoid, build_system, vector_field
@@ -186,10 +185,3 @@ def frc_peak_value(params, force_n, hint: PeakHint):
                              v, ode_adj)
     return amps[2]
 
-
-def check_hint(hint: PeakHint, params, force_n, tol: float = 1e-6):
-    """Residual of the augmented system at the hint (a located peak must satisfy it)."""
-    family = BSFSFamily(params, hint.frequency_hz, force_n)
-    r = family_residual(family, vector_field, hint.method, hint.scale, hint.p_scale, 1,
-                        hint.v)
-    return float(np.max(np.abs(np.asarray(r))))

@@ -228,7 +228,6 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     names = check_parameter_names(names)
     op = operating_point(metric, frequency_hz, force_n)
     theta = parameter_values(params, names)
-    value_fn, _ = compiled(metric.name, names, settings)
     hint0 = locate_hint(metric, params, op, settings)
     if hint0 is not None and hasattr(hint0, "method"):
         # Every perturbed search uses the nominal discretisation (method and harmonic
@@ -239,14 +238,15 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
                                            frc_max_harmonics=h, frc_tol=1.0)
         else:
             settings = dataclasses.replace(settings, frc_method="shooting")
-        value_fn, _ = compiled(metric.name, names, settings)
+    value_fn, _ = compiled(metric.name, names, settings)
 
-    def at(th):  # a metric with a host-side search (the FRC peak) searches again
-        p = with_values(params, names, jnp.asarray(th))
-        return float(value_fn(jnp.asarray(th), params, op, locate_hint(metric, p, op,
-                                                                        settings)))
+    def at(th, hint=None):  # a metric with a host-side search (the FRC peak) searches again
+        if hint is None:
+            hint = locate_hint(metric, with_values(params, names, jnp.asarray(th)), op,
+                               settings)
+        return float(value_fn(jnp.asarray(th), params, op, hint))
 
-    value = at(theta)
+    value = at(theta, hint0)  # the nominal search is the one already done
     grad = np.zeros(len(names))
     for i in range(len(names)):
         h = rel_step * max(abs(theta[i]), 1e-12)

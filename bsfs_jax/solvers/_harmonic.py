@@ -36,7 +36,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._shooting import Scaled, flow
+from ._shooting import SHOOTING_SETTINGS, Scaled, flow
 
 _MAGNUS_STEPS = 256  # Runge-Kutta steps per orbit period for the monodromy
 
@@ -108,8 +108,6 @@ class HarmonicBalance(eqx.Module):
     def init(self, vector_field, y_guess, args, period, n_periods, scale):
         """Coefficients of one orbit period integrated from the guess (a good start when
         the guess lies near the orbit, e.g. the end of a transient)."""
-        from ._shooting import SHOOTING_SETTINGS
-
         n = self.n_samples
         t_end = n_periods * period
         ts = t_end * jnp.arange(n) / n

@@ -13,6 +13,7 @@ unstable orbit whose single-period map amplifies errors) or stiff. The Newton ma
 the segment Jacobians Phi_i' on its block diagonal; the monodromy matrix is their product.
 """
 
+import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -65,8 +66,6 @@ def flow(vector_field, z0, args, scale, t0, t1, ts, settings, ode_adjoint=None):
 def period_map(vector_field, y0, args, period, n_periods: int = 1,
                settings: SolverSettings = SHOOTING_SETTINGS, ode_adjoint=None):
     """Phi^n(y0): the state at t = n T from y0 at t = 0, in the system's units."""
-    import diffrax as dfx
-
     t1 = n_periods * jnp.asarray(period, dtype=float)
     res = integrate(vector_field, y0, args, jnp.zeros_like(t1), t1, t1[None], settings,
                     adjoint=ode_adjoint or dfx.ForwardMode())
@@ -132,8 +131,6 @@ class Shooting(eqx.Module):
         return zs.reshape(-1)
 
     def residual(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
-        import diffrax as dfx
-
         adj = ode_adjoint or dfx.ForwardMode()
         d = scale.shape[0]
         zs = z.reshape(self.segments, d)
@@ -161,8 +158,6 @@ class Shooting(eqx.Module):
 
     def samples(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         """(ts, ys) on a uniform grid of `samples_per_period * n` points over [0, n T)."""
-        import diffrax as dfx
-
         adj = ode_adjoint or dfx.ForwardMode()
         d = scale.shape[0]
         k = self.samples_per_period * n_periods
@@ -186,8 +181,6 @@ class Shooting(eqx.Module):
     def trajectory(self, vector_field, z, args, period, n_periods, scale, ts,
                    ode_adjoint=None):
         """States at times `ts` in [0, n T] (one integration from the orbit's start)."""
-        import diffrax as dfx
-
         t_end = n_periods * period
         ys = flow(vector_field, z[: scale.shape[0]], args, scale, jnp.zeros_like(t_end),
                   t_end, ts, self.settings, ode_adjoint or dfx.ForwardMode())
