@@ -96,8 +96,23 @@ def dopri5_strobe(c, frequency, force, y0, transient_periods, samples, rtol, ato
 
     Returns (strobe (samples + 1, 6), accepted + rejected steps, status: 0 ok, 1 max steps,
     2 non-finite)."""
+    return dopri5_sampled(c, frequency, force, y0, transient_periods, samples, 1, rtol, atol,
+                          max_steps)
+
+
+@numba.njit(cache=True)
+def dopri5_sampled(c, frequency, force, y0, transient_periods, periods, samples_per_period,
+                   rtol, atol, max_steps):
+    """As `dopri5_strobe`, with `samples_per_period` samples per period: states at
+    t = k T / samples_per_period for k = transient x spp .. (transient + periods) x spp
+    (every spp-th is stroboscopic; with spp = 1 this is `dopri5_strobe`, step for step).
+
+    Returns (samples (periods x spp + 1, 6), steps, status)."""
     n = y0.size
+    spp = samples_per_period
     period = 1.0 / frequency
+    samples = periods * spp
+    transient_periods = transient_periods * spp
     strobe = np.full((samples + 1, n), np.nan)
     y = y0.copy()
     t = 0.0
@@ -113,11 +128,11 @@ def dopri5_strobe(c, frequency, force, y0, transient_periods, samples, rtol, ato
     h = _initial_step(t, y, k1, c, frequency, force, rtol, atol)
     steps = 0
     next_k = transient_periods
-    t_next = next_k * period
+    t_next = next_k * period / spp
     if next_k == 0:
         strobe[0] = y
         next_k += 1
-        t_next = next_k * period
+        t_next = next_k * period / spp
     while next_k <= transient_periods + samples:
         if steps >= max_steps:
             return strobe, steps, 1
@@ -166,7 +181,7 @@ def dopri5_strobe(c, frequency, force, y0, transient_periods, samples, rtol, ato
             if hit:
                 strobe[next_k - transient_periods] = y
                 next_k += 1
-                t_next = next_k * period
+                t_next = next_k * period / spp
                 # keep the controller's proposal for the step that was cut short
                 h = max(h, hh * factor) if hh < h else hh * factor
             else:
@@ -210,3 +225,40 @@ def sweep_numba_parallel(c, frequencies, force, transient_periods, samples, rtol
     """As `sweep_numba`, with the points spread over all cores (numba prange)."""
     return _sweep_parallel(c, np.asarray(frequencies, dtype=float), float(force),
                            int(transient_periods), int(samples), rtol, atol, max_steps)
+
+
+@numba.njit(parallel=True, cache=True)
+def _brute_parallel(c, frequencies, force, transients, periods, spp, rtol, atol, max_steps):
+    n = frequencies.size
+    out = np.empty((n, periods * spp + 1, 6))
+    steps = np.zeros(n, dtype=np.int64)
+    status = np.zeros(n, dtype=np.int64)
+    for i in numba.prange(n):
+        s, k, st = dopri5_sampled(c, frequencies[i], force, np.zeros(6), transients[i],
+                                  periods, spp, rtol, atol, max_steps)
+        out[i] = s
+        steps[i] = k
+        status[i] = st
+    return out, steps, status
+
+
+def brute_force_numba(c, frequencies, force, transients, periods, samples_per_period, rtol,
+                      atol, max_steps=500_000_000, parallel=False):
+    """Cold runs from rest with a transient per point (`transients` (N,) periods), then
+    `periods` recorded periods at `samples_per_period` samples each; one core, or prange
+    over all cores with `parallel`. Returns (samples (N, periods x spp + 1, 6), steps,
+    status)."""
+    f = np.asarray(frequencies, dtype=float)
+    tr = np.asarray(transients, dtype=np.int64)
+    if parallel:
+        return _brute_parallel(c, f, float(force), tr, int(periods), int(samples_per_period),
+                               rtol, atol, max_steps)
+    out = np.empty((f.size, periods * samples_per_period + 1, 6))
+    steps = np.zeros(f.size, dtype=np.int64)
+    status = np.zeros(f.size, dtype=np.int64)
+    for i in range(f.size):
+        out[i], steps[i], status[i] = dopri5_sampled(c, float(f[i]), float(force), np.zeros(6),
+                                                     int(tr[i]), int(periods),
+                                                     int(samples_per_period), rtol, atol,
+                                                     max_steps)
+    return out, steps, status

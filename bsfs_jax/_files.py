@@ -1,8 +1,13 @@
-"""Atomic file writing shared by every layer that writes user files."""
+"""One home for what every layer writes: atomic files, JSON encoding, chunk checkpoints."""
 
+import dataclasses
+import json
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 
 def _umask() -> int:
@@ -11,8 +16,9 @@ def _umask() -> int:
     return mask
 
 
-def write_bytes_atomic(path, payload: bytes) -> Path:
-    """Write `payload` to `path` via a temporary file in the same folder and a rename.
+def write_atomic(path, write: Callable[[Path], object]) -> Path:
+    """Create `path` atomically: `write(tmp)` fills a temporary file in the same folder,
+    which is then renamed onto `path`.
 
     A reader never sees a half-written file, and an interrupted write leaves the old
     file intact. The result gets the usual permissions (0666 less the umask).
@@ -20,9 +26,9 @@ def write_bytes_atomic(path, payload: bytes) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
+        write(Path(tmp))
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
@@ -32,5 +38,100 @@ def write_bytes_atomic(path, payload: bytes) -> Path:
     return path
 
 
+def write_bytes_atomic(path, payload: bytes) -> Path:
+    """Write `payload` to `path` atomically (see `write_atomic`)."""
+    return write_atomic(path, lambda tmp: tmp.write_bytes(payload))
+
+
 def write_text_atomic(path, text: str) -> Path:
     return write_bytes_atomic(path, text.encode())
+
+
+def save_npz_atomic(path, **arrays) -> Path:
+    """`np.savez(path, **arrays)` atomically (the name is kept as given)."""
+
+    def write(tmp: Path):
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+    return write_atomic(path, write)
+
+
+def jsonable(obj, *, omit: Callable[[object], bool] | None = None):
+    """`obj` with every part made JSON-encodable.
+
+    Dicts (keys become strings), lists, tuples and sets, dataclass instances (as dicts),
+    numpy/JAX arrays (nested lists) and numpy scalars (Python numbers) are converted
+    recursively; non-finite floats become None (JSON has no NaN). Objects for which
+    `omit(obj)` is true become None; anything else is returned unchanged.
+    """
+    if omit is not None and omit(obj):
+        return None
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v, omit=omit) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | set | frozenset):
+        return [jsonable(v, omit=omit) for v in obj]
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return jsonable(dataclasses.asdict(obj), omit=omit)
+    if isinstance(obj, np.generic) or hasattr(obj, "shape") and hasattr(obj, "dtype"):
+        arr = np.asarray(obj)
+        return jsonable(arr.item() if arr.ndim == 0 else arr.tolist(), omit=omit)
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def _is_writer() -> bool:
+    """Only process 0 writes shared files (multi-process JAX); True without JAX loaded."""
+    import sys
+
+    jax = sys.modules.get("jax")
+    return jax is None or jax.process_index() == 0
+
+
+class ChunkCheckpoint:
+    """A folder of per-chunk .npz files plus a manifest naming the run they belong to.
+
+    - The manifest (`manifest.json`, written atomically) holds `fingerprint`: a folder
+      written for another fingerprint raises a ValueError instead of being mixed in.
+    - `load(k)` returns chunk k's arrays, or None when it is missing or damaged (so it is
+      recomputed); `save(k, arrays)` writes it atomically.
+    - Only process 0 writes (under `jax.distributed`, every process reads).
+    - `folder=None`: no checkpointing (load returns None, save does nothing).
+    """
+
+    MANIFEST = "manifest.json"
+
+    def __init__(self, folder, fingerprint: str, n_chunks: int, *, prefix: str = "chunk"):
+        self.folder = None if folder is None else Path(folder)
+        self.fingerprint = fingerprint
+        self.prefix = prefix
+        if self.folder is None:
+            return
+        manifest = self.folder / self.MANIFEST
+        if manifest.exists():
+            old = json.loads(manifest.read_text())
+            if old.get("fingerprint") != fingerprint:
+                raise ValueError(
+                    f"checkpoint folder '{self.folder}' holds a different sweep (fingerprint "
+                    f"{old.get('fingerprint')} != {fingerprint}: other values, parameters or "
+                    "settings). Use a new folder, or delete this one to start over.")
+        elif _is_writer():
+            write_text_atomic(manifest, json.dumps({"fingerprint": fingerprint,
+                                                    "n_chunks": int(n_chunks)}))
+
+    def path(self, k: int) -> Path:
+        return self.folder / f"{self.prefix}_{k:05d}.npz"
+
+    def load(self, k: int) -> dict | None:
+        if self.folder is None or not self.path(k).exists():
+            return None
+        try:
+            with np.load(self.path(k), allow_pickle=False) as z:
+                return {name: z[name] for name in z.files}
+        except (OSError, ValueError, EOFError):
+            return None  # a damaged file is recomputed
+
+    def save(self, k: int, arrays: dict) -> None:
+        if self.folder is not None and _is_writer():
+            save_npz_atomic(self.path(k), **arrays)

@@ -93,20 +93,65 @@ def test_continued_sweep_shows_hysteresis_and_jumps(both):
 
 
 def test_save_load_roundtrip(both, tmp_path):
-    path = tmp_path / "sweep.npz"
-    both.save(path)
+    import dataclasses
+
+    import xarray as xr
+
+    path = tmp_path / "sweep.nc"
+    D, N = len(both.directions), OMEGAS.size
+    verdicts = {
+        "motion": np.where(np.arange(N)[None, :] % 2 == 0, "period-1", "chaotic?").repeat(D, 0),
+        "agrees": (np.arange(D * N).reshape(D, N) % 3 == 0),
+        "margin": np.linspace(-1.0, 1.0, D * N).reshape(D, N),
+    }
+    verdicts["margin"][0, 1] = np.nan
+    dataclasses.replace(both, verdicts=verdicts).save(path)
+    assert not list(tmp_path.glob(".*.tmp"))  # the temporary file was renamed
     back = load_sweep(path)
     assert back.param == "omega" and back.unit == "rad/s" and back.directions == ("up", "down")
-    np.testing.assert_array_equal(back.amplitude, both.amplitude)
-    np.testing.assert_array_equal(back.strobe, both.strobe)
+    assert back.state_names == ("x", "v") and back.mode == "continued"
+    np.testing.assert_array_equal(back.values, both.values)
+    np.testing.assert_array_equal(back.period, both.period)
+    for name in ("amplitude", "strobe", "spectrum", "log_growth", "num_steps", "end_state"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(both, name))
     np.testing.assert_array_equal(result_codes(back.result), result_codes(both.result))
-    with np.load(path) as z:
-        attrs = json.loads(str(z["attrs"]))
-        assert z["status"].shape == (2, OMEGAS.size) and np.all(z["status"] == 0)
-    assert attrs["status_messages"] == {"0": "successful"}
-    assert attrs["dims"]["strobe"] == ["direction", "point", "sample", "state"]
-    assert attrs["config"]["settings"]["rtol"] == 1e-8
-    assert back.summary()["points"][0]["motion"] == "period-1"
+    assert back.config == both.config and back.config["settings"]["rtol"] == 1e-8
+    assert back.metadata["fingerprint"] == both.metadata["fingerprint"]
+    assert list(back.verdicts) == ["motion", "agrees", "margin"]
+    assert back.verdicts["motion"].dtype.kind == "U" and back.verdicts["agrees"].dtype == bool
+    np.testing.assert_array_equal(back.verdicts["motion"], verdicts["motion"])
+    np.testing.assert_array_equal(back.verdicts["agrees"], verdicts["agrees"])
+    np.testing.assert_array_equal(back.verdicts["margin"], verdicts["margin"])
+    assert load_sweep(path).summary()["points"][0]["motion"] == "period-1"
+    assert both.verdicts is None
+
+    # Any NetCDF reader sees labelled, self-describing variables.
+    with xr.open_dataset(path) as ds:
+        assert ds.attrs["format"] == "bsfs-sweep-2" and ds.attrs["param"] == "omega"
+        assert ds["omega"].attrs["units"] == "rad/s" and ds["omega"].dims == ("point",)
+        assert ds["strobe"].dims == ("direction", "point", "sample", "state")
+        assert ds["log_growth"].dims == ("direction", "point", "period")
+        assert ds["amplitude"].attrs["units"] == "1" and "long_name" in ds["amplitude"].attrs
+        assert ds["lyapunov"].attrs["units"] == "1/1"
+        assert ds["spectrum_order"].dims == ("bin",)
+        assert list(ds["direction"].values) == ["up", "down"]
+        assert list(ds["state"].values) == ["x", "v"]
+        assert ds["status"].shape == (2, N) and int(ds["status"].max()) == 0
+        assert json.loads(ds.attrs["status_messages"]) == {"0": "successful"}
+    xr.testing.assert_identical(back.to_xarray(),
+                                dataclasses.replace(both, verdicts=verdicts).to_xarray())
+
+    # Files that are not sweeps: one line naming the file.
+    other = tmp_path / "other.nc"
+    xr.Dataset({"a": ("x", np.arange(3.0))}).to_netcdf(other, engine="h5netcdf")
+    text = tmp_path / "notes.nc"
+    text.write_text("not a sweep")
+    for bad in (other, text):
+        with pytest.raises(ValueError, match="not a bsfs sweep file") as info:
+            load_sweep(bad)
+        assert str(bad) in str(info.value) and "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="verdict 'short'"):
+        dataclasses.replace(both, verdicts={"short": np.zeros(3)}).save(tmp_path / "x.nc")
 
 
 def test_checkpoint_resume_recomputes_only_missing_chunks(problem, tmp_path, monkeypatch):
@@ -144,6 +189,31 @@ def test_checkpoint_resume_recomputes_only_missing_chunks(problem, tmp_path, mon
     # A different sweep refuses to reuse the folder.
     with pytest.raises(ValueError, match="different sweep"):
         sweep(problem, values * 1.01, config=CFG, checkpoint_dir=tmp_path, progress=False)
+
+
+def test_per_point_transient_in_cold_mode(problem, tmp_path):
+    values = OMEGAS[::2]  # the chunk shapes of the test above: no new compile
+    reference = sweep(problem, values, config=CFG, progress=False)
+    same = sweep(problem, values, config=CFG, transient=np.full(values.size, 150),
+                 progress=False)
+    np.testing.assert_array_equal(same.amplitude, reference.amplitude)
+    assert "transient_periods_per_point" not in same.metadata
+    short = np.full(values.size, 150)
+    short[0] = 5  # e^(-0.05 * 5 T) at omega = 0.8: the start transient is still there
+    res = sweep(problem, values, config=CFG, transient=short, checkpoint_dir=tmp_path,
+                progress=False)
+    assert res.metadata["transient_periods_per_point"] == short.tolist()
+    assert abs(res.amplitude[0, 0, 0] / reference.amplitude[0, 0, 0] - 1) > 1e-3
+    np.testing.assert_allclose(res.amplitude[:, 1:], reference.amplitude[:, 1:], rtol=1e-9)
+    # The transients are part of the checkpoint fingerprint.
+    with pytest.raises(ValueError, match="different sweep"):
+        sweep(problem, values, config=CFG, checkpoint_dir=tmp_path, progress=False)
+    for bad, match in ((np.full(3, 150), "shape"), (np.full(values.size, 150.0), "int array"),
+                       (np.zeros(values.size, int), ">= 1")):
+        with pytest.raises(ValueError, match=match):
+            sweep(problem, values, config=CFG, transient=bad, progress=False)
+    with pytest.raises(ValueError, match="mode='cold'"):
+        sweep(problem, values, mode="continued", config=CFG, transient=short, progress=False)
 
 
 def test_continued_checkpoint_resume_carries_the_state(problem, tmp_path, monkeypatch):
@@ -262,7 +332,7 @@ def test_cli_sweep_writes_outputs_and_resumes(tmp_path):
             "--rtol", "1e-6", "--atol", "1e-10", "--chunk", "2", "--batch", "2", "--no-progress",
             "--out", str(out)]
     assert main(argv) == 0
-    for name in ("bifurcation.png", "frc.png", "waterfall.png", "sweep.npz", "summary.json"):
+    for name in ("bifurcation.png", "frc.png", "waterfall.png", "sweep.nc", "summary.json"):
         assert (out / name).stat().st_size > 0, name
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["points"]) == 4 and summary["param"] == "frequency_hz"
@@ -270,12 +340,33 @@ def test_cli_sweep_writes_outputs_and_resumes(tmp_path):
     assert p0["frequency_hz"] == 300.0 and p0["motion"] == "period-1"
     # 100 N well below resonance: nearly linear, sub-micrometre to micrometre amplitudes
     assert 1e-8 < p0["amplitude"] < 1e-5
-    assert p0["lyapunov_per_s"] < 0
+    # Verified: an orbit from the sampled state with its residual and multipliers.
+    assert all(p["verified"] for p in summary["points"]) and summary["verified"]
+    ev = p0["evidence"]
+    assert ev["orbit_residual"] < 1e-6 and 0 < ev["max_multiplier"] < 1
+    assert ev["lyapunov_per_period"] < 0 and ev["transient_s"] > 0
+    assert "stable period-1 orbit" in p0["reason"]
     # Rerun with the same --out: nothing recomputed.
     assert main(argv) == 0
     summary2 = json.loads((out / "summary.json").read_text())
     assert summary2["metadata"]["chunks_computed_this_run"] == 0
     assert summary2["points"][0]["amplitude"] == p0["amplitude"]
+
+
+def test_jumps_are_located_at_their_folds(problem, both):
+    # The branch left behind by each jump ends at a fold between the two grid points;
+    # continuation (shooting) from the orbit before the jump locates it.
+    from bsfs_jax.analysis import locate_jump_folds
+
+    jumps = [j for j in both.jumps() if j.hysteresis is not False]
+    assert {j.direction for j in jumps} == {"up", "down"}
+    locate_jump_folds(problem, both, jumps)
+    for j in jumps:
+        lo, hi = sorted((j.value_before, j.value_after))
+        assert j.fold_located and lo < j.fold_value < hi, j
+        # The fold's amplitude continues the branch before the jump (same side).
+        assert abs(j.fold_amplitude - j.amplitude_before) < abs(
+            j.fold_amplitude - j.amplitude_after)
 
 
 def test_continued_segments_run_side_by_side(problem, both):

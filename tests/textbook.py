@@ -56,3 +56,12 @@ def lorenz(t, y, args):
     sigma, rho, beta = args
     x, yy, z = y[0], y[1], y[2]
     return jnp.stack([sigma * (yy - x), x * (rho - z) - yy, x * yy - beta * z])
+
+
+def van_der_pol(t, y, args):
+    """Forced van der Pol oscillator x'' - mu (1 - x^2) x' + x = a cos(omega t),
+    args = (mu, a, omega). Weak forcing away from the locking tongues leaves the limit
+    cycle beside the forcing: a 2-torus, quasi-periodic at the strobe."""
+    mu, a, omega = args
+    x, v = y[0], y[1]
+    return jnp.stack([v, a * jnp.cos(omega * t) + mu * (1.0 - x * x) * v - x])

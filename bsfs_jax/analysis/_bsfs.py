@@ -50,7 +50,7 @@ def bsfs_problem(params: BallScrewParams, param: str = FREQUENCY, *, frequency_h
     force = 0.0 if force_n is None else force_n
     if not float(frequency) > 0:
         raise ValueError(f"frequency_hz must be positive, got {frequency}")
-    from ._sweep import SweepProblem
+    from ._sweep_problem import SweepProblem
 
     data = (params, jnp.asarray(frequency, dtype=float), jnp.asarray(force, dtype=float))
     return SweepProblem(vector_field, BSFSSetup(param), data,

@@ -1,4 +1,9 @@
-"""Motion classification: period-n, quasi-periodic or chaotic.
+"""Motion classification from samples alone: period-n, quasi-periodic or chaotic.
+
+These labels are *candidates*: they read the samples as they are and cannot tell a
+periodic orbit still shedding a lightly damped mode from a torus. `_verify.py` turns
+them into verified labels (an orbit with its multipliers, or an exponent with its
+confidence interval) or "unresolved"; sweeps report the verified labels.
 
 Three pieces of evidence are combined (numpy, after the sweep):
 
@@ -31,7 +36,10 @@ class ClassifierSettings:
 
     - `max_period`: largest n looked for in period-n (needs >= 2n + 1 strobe samples).
     - `tol`: repetition tolerance, relative to each coordinate's amplitude.
-    - `lyapunov_tol`: lambda T above which non-periodic motion is chaotic.
+    - `lyapunov_tol`: threshold on lambda T, the exponent *per forcing period* (the
+      growth of the stroboscopic map per iterate), not on lambda in 1/s: a fixed rate
+      would call a slowly decaying mode "zero" at high forcing frequencies. For an
+      autonomous flow (no forcing) pass lambda times the sampling interval used as "T".
     - `line_fraction_min`: spectral power fraction in the `lines` strongest lines above
       which a spectrum counts as discrete (quasi-periodic) rather than broadband.
     """

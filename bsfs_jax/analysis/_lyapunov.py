@@ -10,6 +10,7 @@ most unstable direction.
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..solvers import RESULTS, SolverSettings, integrate
 
@@ -27,13 +28,25 @@ class TangentField(eqx.Module):
 
 
 class LyapunovResult(eqx.Module):
-    """`exponent` [1/time unit], per-interval `log_growth`, final `state`, and the solver
-    `result` (a `RESULTS` item; the exponent is NaN unless it is successful)."""
+    """`exponent` [1/time unit], per-interval `log_growth`, final `state`, the solver
+    `result` (a `RESULTS` item; the exponent is NaN unless it is successful) and the
+    renormalisation `interval`."""
 
     exponent: jax.Array
     log_growth: jax.Array
     state: jax.Array
     result: RESULTS
+    interval: jax.Array = None
+
+    def confidence_interval(self, segments: int = 8):
+        """(low, high): the 95 % confidence interval of `exponent` [1/time unit] from
+        `segments` independent consecutive segments of the counted intervals
+        (Student t on the segment means; NaN if the run failed)."""
+        from ._evidence import exponent_interval
+
+        _, lo, hi = exponent_interval(np.asarray(self.log_growth), segments)
+        dt = float(self.interval)
+        return lo / dt, hi / dt
 
     @property
     def ok(self) -> jax.Array:
@@ -102,7 +115,7 @@ def exponent_from_growth(log_growth, interval, discard: float = 0.25):
 
 @eqx.filter_jit
 def _lyapunov_core(vector_field, y0, args, t0, interval, transient_intervals: int,
-                   n_intervals: int, settings: SolverSettings):
+                   align_intervals: int, n_intervals: int, settings: SolverSettings):
     y = jnp.asarray(y0, dtype=float)
     result = RESULTS.successful
     if transient_intervals > 0:
@@ -110,16 +123,24 @@ def _lyapunov_core(vector_field, y0, args, t0, interval, transient_intervals: in
         res = integrate(vector_field, y, args, t0, t1, jnp.stack([t1]), settings, throw=False)
         y, result = res.ys[-1], res.result
         t0 = t1
+    tangent = None
+    if align_intervals > 0:
+        # The tangent vector turns towards the most unstable direction; its growth over
+        # these intervals is not counted.
+        y, tangent, _, _, st, _ = benettin_steps(vector_field, y, args, t0, interval,
+                                                 align_intervals, settings)
+        result = first_failure(result, st)
+        t0 = t0 + align_intervals * interval
     y_end, _, logs, _, st, _ = benettin_steps(vector_field, y, args, t0, interval, n_intervals,
-                                        settings)
+                                              settings, tangent=tangent)
     result = first_failure(result, st)
     exponent = exponent_from_growth(logs, interval, discard=0.0)
     return LyapunovResult(jnp.where(result == RESULTS.successful, exponent, jnp.nan), logs,
-                          y_end, result)
+                          y_end, result, interval)
 
 
 def largest_lyapunov(vector_field, y0, args, *, interval, n_intervals: int,
-                     transient_intervals: int = 0, t0=0.0,
+                     transient_intervals: int = 0, align_intervals: int = 10, t0=0.0,
                      settings: SolverSettings = SolverSettings()) -> LyapunovResult:
     """Largest Lyapunov exponent of y' = f(t, y, args) by Benettin's method.
 
@@ -127,16 +148,23 @@ def largest_lyapunov(vector_field, y0, args, *, interval, n_intervals: int,
     - `vector_field`: any f(t, y, args) (autonomous or periodically forced).
     - `y0`: initial state; `args`: passed to f.
     - `interval`: renormalisation interval (for forced systems: the forcing period, so the
-      result also equals the exponent of the stroboscopic map divided by T).
+      result also equals the exponent of the stroboscopic map divided by T; for
+      autonomous flows any interval of the order of the flow's correlation time).
     - `n_intervals`: number of intervals averaged; `transient_intervals`: intervals
-      integrated first (without the tangent) to reach the attractor.
+      integrated first (without the tangent) to reach the attractor;
+      `align_intervals`: intervals integrated with the tangent vector, renormalised but
+      not counted, so that it has turned towards the most unstable direction first.
     - `settings`: `SolverSettings` (tolerances also apply to the tangent vector).
 
     **Returns:** `LyapunovResult` with `exponent` in 1/(time unit of f) (NaN if the solve
-    failed; see `result`, a `RESULTS` item) and the per-interval `log_growth`.
+    failed; see `result`, a `RESULTS` item), the per-interval `log_growth` of the counted
+    intervals, and `confidence_interval()` from independent segments.
     """
     if n_intervals < 1:
         raise ValueError(f"n_intervals must be >= 1, got {n_intervals}")
+    if int(align_intervals) < 0 or int(transient_intervals) < 0:
+        raise ValueError("align_intervals and transient_intervals must be >= 0, got "
+                         f"{align_intervals} and {transient_intervals}")
     return _lyapunov_core(vector_field, y0, args, jnp.asarray(t0, dtype=float),
                           jnp.asarray(interval, dtype=float), int(transient_intervals),
-                          int(n_intervals), settings)
+                          int(align_intervals), int(n_intervals), settings)

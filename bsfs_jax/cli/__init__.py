@@ -13,6 +13,7 @@ import sys
 _COMMAND_MODULES = [
     "bsfs_jax.cli._simulate_cmd",
     "bsfs_jax.cli._analysis_cmd",
+    "bsfs_jax.cli._map_cmd",
     "bsfs_jax.cli._continue_cmd",
     "bsfs_jax.cli._identify_cmd",
     "bsfs_jax.cli._design_cmd",

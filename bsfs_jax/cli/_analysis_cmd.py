@@ -7,6 +7,7 @@ from ._common import (
     add_params_args,
     load_params_from_args,
     out_dir,
+    progress_enabled,
     save_figure,
     write_json,
 )
@@ -18,8 +19,13 @@ def register(sub) -> None:
         help="sweep frequency, force or any parameter; bifurcation diagram, FRC, waterfall",
         description="Steady response at each of N parameter values (vectorised, chunked, "
         "checkpointed under OUT/checkpoint so that a rerun with the same --out resumes). "
-        "Writes sweep.npz, summary.json (value, amplitude, motion class and largest "
-        "Lyapunov exponent of each point), bifurcation.png, frc.png and waterfall.png.")
+        "Writes sweep.nc (labelled NetCDF4: every array with its dimensions and units; "
+        "open with xarray.open_dataset or bsfs_jax.analysis.load_sweep), summary.json "
+        "(per point: value, amplitude, motion label, whether it is verified, its evidence "
+        "- orbit residual and Floquet multipliers, or the largest Lyapunov exponent with "
+        "its 95 %% interval - and the reason), bifurcation.png, frc.png and waterfall.png. "
+        "Every label is verified by default: an orbit found from the sampled state, or an "
+        "exponent with its confidence interval; anything else is 'unresolved'.")
     p.add_argument("--param", default="frequency_hz",
                    help="'frequency_hz', 'force_n' or a parameter key such as nut.balls, "
                    "bearing.contact_angle_deg, nut.preload_n (file units)")
@@ -33,16 +39,25 @@ def register(sub) -> None:
     p.add_argument("--direction", choices=("up", "down", "both"), default="up",
                    help="continued mode: sweep up, down or both (hysteresis)")
     add_params_args(p)
-    p.add_argument("--transient", type=int, default=200,
-                   help="transient periods discarded at cold starts (default 200)")
+    p.add_argument("--transient", default="auto",
+                   help="transient periods discarded at cold starts: 'auto' (default: three "
+                   "time constants of the slowest linear mode per point when verifying, "
+                   "else 200) or a number")
     p.add_argument("--continued-transient", type=int, default=20,
                    help="transient periods of continued points (default 20)")
-    p.add_argument("--periods", type=int, default=64,
-                   help="recorded periods = stroboscopic samples - 1 (default 64)")
+    p.add_argument("--periods", type=int, default=32,
+                   help="recorded periods = stroboscopic samples - 1 (default 32; points "
+                   "without a periodic orbit are continued in blocks by the verifier)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip the verification of the motion labels (they are then reported "
+                   "as unverified candidates read from the samples)")
+    p.add_argument("--no-folds", action="store_true",
+                   help="continued mode: do not locate the folds behind the jumps")
     p.add_argument("--samples-per-period", type=int, default=32)
-    p.add_argument("--no-lyapunov", action="store_true",
-                   help="skip the tangent dynamics (faster; classification then uses the "
-                   "spectrum only)")
+    p.add_argument("--lyapunov", action="store_true",
+                   help="also integrate the tangent dynamics over every recorded record "
+                   "(the verifier computes exponents with confidence intervals where it "
+                   "needs them anyway)")
     p.add_argument("--rtol", type=float, default=1e-8)
     p.add_argument("--atol", type=float, default=1e-12)
     p.add_argument("--max-steps", type=int, default=4_000_000)
@@ -59,7 +74,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..analysis import SweepConfig, bsfs_problem, sweep
+    from ..analysis import SweepConfig, VerifySettings, bsfs_problem, locate_jump_folds, sweep
     from ..plotting import plot_bifurcation, plot_frc, plot_waterfall
     from ..solvers import SolverSettings
 
@@ -70,43 +85,62 @@ def run(args) -> int:
                        f"--stop {args.stop}")
     if args.param != "frequency_hz" and args.frequency is None:
         raise CLIError(f"sweeping {args.param} needs a fixed --frequency HZ")
+    if args.transient != "auto":
+        try:
+            transient = int(args.transient)
+        except ValueError:
+            raise CLIError(f"--transient must be 'auto' or a whole number of periods, got "
+                           f"{args.transient!r}") from None
     params = load_params_from_args(args)
     folder = out_dir(args.out)
+    verify = None if args.no_verify else VerifySettings()
     try:
         problem = bsfs_problem(params, args.param, frequency_hz=args.frequency,
                                force_n=args.force)
         config = SweepConfig(
-            transient_periods=args.transient,
+            transient_periods=200 if args.transient == "auto" else transient,
             continued_transient_periods=args.continued_transient, periods=args.periods,
-            samples_per_period=args.samples_per_period, lyapunov=not args.no_lyapunov,
+            samples_per_period=args.samples_per_period, lyapunov=args.lyapunov,
             batch_size=args.batch, chunk_size=args.chunk,
             settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
     except ValueError as exc:
         raise CLIError(str(exc)) from None
     values = np.linspace(args.start, args.stop, args.num)
     source = args.params or f"preset:{args.preset or 'default'}"
+    fixed = None if args.transient == "auto" or args.mode != "cold" else \
+        np.full(values.size, transient)
     result = sweep(problem, values, mode=args.mode, direction=args.direction, config=config,
-                   checkpoint_dir=folder / "checkpoint", progress=not args.no_progress,
-                   shard=args.shard,
+                   transient=fixed if verify is not None else None,
+                   checkpoint_dir=folder / "checkpoint", progress=progress_enabled(args),
+                   shard=args.shard, verify=verify,
                    metadata={"parameters": source, "overrides": list(args.set),
                              "frequency_hz": args.frequency, "force_n": args.force})
-    result.save(folder / "sweep.npz")
-    summary = result.summary()
+    jumps = result.jumps()
+    if args.mode == "continued" and not args.no_folds:
+        real = [j for j in jumps if j.hysteresis is not False]
+        locate_jump_folds(problem, result, real)
+    result.save(folder / "sweep.nc")
+    summary = result.summary(jumps=jumps)
     write_json(folder / "summary.json", summary)
     force = f"{args.force:g} N" if args.param != "force_n" else "swept force"
     where = f", {args.frequency:g} Hz" if args.param != "frequency_hz" else ""
     tag = f"({force}{where}, {source})"
     save_figure(plot_bifurcation(result, title=f"Bifurcation diagram of the nut displacement "
                                  f"vs {args.param} {tag}"), folder / "bifurcation.png")
-    save_figure(plot_frc(result), folder / "frc.png")
+    save_figure(plot_frc(result, jumps=jumps), folder / "frc.png")
     save_figure(plot_waterfall(result), folder / "waterfall.png")
     failed = summary["failed_points"]
+    counts = ", ".join(f"{k} {v}" for k, v in summary["motion_counts"].items())
+    state = "verified" if verify is not None else "NOT verified (--no-verify)"
     print(f"bsfs sweep: {len(summary['points'])} points, {failed} failed, "
           f"{len(summary['jumps'])} jumps -> {folder}")
+    print(f"  motion ({state}): {counts}")
     for j in summary["jumps"]:
         if j.get("hysteresis") is False:
             continue  # a steep single-valued flank, not a jump between branches
+        fold = (f"; fold at {j['fold_value']:.6g} {result.unit}" if j.get("fold_value")
+                is not None else "")
         print(f"  {j['direction']} {j['kind']} between {j['value_before']:.6g} and "
               f"{j['value_after']:.6g} {result.unit}: amplitude {j['amplitude_before']:.4g} -> "
-              f"{j['amplitude_after']:.4g}")
+              f"{j['amplitude_after']:.4g}{fold}")
     return 0

@@ -4,8 +4,7 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
-
+from .._files import jsonable as jsonable
 from .._files import write_bytes_atomic as write_bytes_atomic
 from .._files import write_text_atomic as write_text_atomic
 
@@ -75,22 +74,9 @@ def out_dir(path) -> Path:
     return path
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if hasattr(obj, "shape"):
-        arr = np.asarray(obj)
-        return arr.item() if arr.ndim == 0 else _jsonable(arr.tolist())
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
-
-
 def write_json(path, data) -> None:
     """Write JSON atomically (temp file in the same folder, then rename)."""
-    write_bytes_atomic(path, (json.dumps(_jsonable(data), indent=2) + "\n").encode())
+    write_bytes_atomic(path, (json.dumps(jsonable(data), indent=2) + "\n").encode())
 
 
 def save_figure(fig, path) -> None:

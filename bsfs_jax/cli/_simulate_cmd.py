@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from .._numerics import half_range
 from ._common import (
     CLIError,
     add_params_args,
@@ -123,7 +124,7 @@ def run_simulate(args) -> int:
     v = np.asarray(traj.velocity)
     a = np.asarray(traj.acceleration)
     jf = np.asarray(traj.joint_force)
-    amp = 0.5 * (x.max(axis=0) - x.min(axis=0))
+    amp = half_range(x, axis=0)
     strobe = x[:: traj.samples_per_period, 2]
     spread = np.ptp(strobe) / max(amp[2], 1e-30)
     freq, spec = trajectory_spectrum(traj)
@@ -211,12 +212,12 @@ def run_modes(args) -> int:
     if args.json:
         import json
 
-        from ._common import _jsonable
+        from ._common import jsonable
 
-        print(json.dumps(_jsonable({"natural_frequencies_hz": f, "damping_ratios": z,
-                                    "mode_shapes_bsn": shapes.T,
-                                    "static_stiffness_n_per_um": float(md.static_stiffness) / 1e6,
-                                    **_thermal_dict(system)}), indent=2))
+        print(json.dumps(jsonable({"natural_frequencies_hz": f, "damping_ratios": z,
+                                   "mode_shapes_bsn": shapes.T,
+                                   "static_stiffness_n_per_um": float(md.static_stiffness) / 1e6,
+                                   **_thermal_dict(system)}), indent=2))
         return 0
     print("mode  frequency [Hz]  damping ratio   shape (bearing, screw, nut; max = 1)")
     for i in range(3):

@@ -6,6 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._numerics import half_range
 from ..model import Sinusoid, System, accelerations, build_system, joint_forces, vector_field
 from ..params import BallScrewParams, validate
 from ..solvers import RESULTS, SolverSettings, check_result, integrate
@@ -58,7 +59,7 @@ class Trajectory(eqx.Module):
     def amplitude(self, dof: int = 2):
         """Half the peak-to-peak displacement [m] of a mass (default: the nut, x_n)."""
         x = self.displacement[..., dof]
-        return 0.5 * (jnp.max(x, axis=-1) - jnp.min(x, axis=-1))
+        return half_range(x, axis=-1)
 
 
 @dataclasses.dataclass(frozen=True)

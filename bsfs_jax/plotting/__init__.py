@@ -4,6 +4,8 @@ from ._analysis import plot_bifurcation as plot_bifurcation
 from ._analysis import plot_frc as plot_frc
 from ._analysis import plot_response as plot_response
 from ._analysis import plot_waterfall as plot_waterfall
+from ._atlas import plot_atlas_amplitude as plot_atlas_amplitude
+from ._atlas import plot_atlas_motion as plot_atlas_motion
 from ._continuation import plot_continuation as plot_continuation
 from ._continuation import stability_segments as stability_segments
 from ._design import optimization_summary as optimization_summary

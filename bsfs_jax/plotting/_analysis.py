@@ -41,12 +41,21 @@ def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None
     factor, ylabel = _state_label(result, c)
     fig = Figure(figsize=(8, 5))
     ax = fig.add_subplot()
+    verdicts = getattr(result, "verdicts", None)
     for d, name in enumerate(result.directions):
         s = result.strobe[d, :, :, c] * factor
         x = np.broadcast_to(result.values[:, None], s.shape)
         style = _DIR_STYLE.get(name, {})
-        ax.plot(x.ravel(), s.ravel(), ".", ms=2.5, color=style.get("color", "k"), alpha=0.6)
-        ax.plot([], [], "o", ms=3, color=style.get("color", "k"), label=f"{name} sweep")
+        ok = np.ones(result.values.size, bool) if verdicts is None else \
+            np.asarray(verdicts["verified"][d], bool)
+        ax.plot(x[ok].ravel(), s[ok].ravel(), ".", ms=2.5, color=style.get("color", "k"),
+                alpha=0.6)
+        what = "verified labels" if verdicts is not None else "labels not verified"
+        ax.plot([], [], "o", ms=3, color=style.get("color", "k"), label=f"{name} sweep ({what})")
+        if verdicts is not None and (~ok).any():
+            ax.plot(x[~ok].ravel(), s[~ok].ravel(), ".", ms=2.5, color="0.6", alpha=0.6)
+            ax.plot([], [], "o", ms=3, color="0.6",
+                    label=f"{name}: unresolved or failed ({int((~ok).sum())} points)")
         bad = result.failed[d]
         if bad.any():
             ax.plot(result.values[bad], np.zeros(bad.sum()), "x", color="red",
@@ -75,11 +84,17 @@ def plot_frc(result, *, coordinate: int | None = None, jumps=None, title: str | 
     # With both directions, draw only the jumps that leave a coexisting branch.
     jumps = [j for j in jumps if j.hysteresis is not False]
     for j in jumps:
-        x = 0.5 * (j.value_before + j.value_after)
+        # At the located fold; a jump without one is drawn between its two grid points and
+        # says so.
+        located = j.fold_value is not None
+        x = j.fold_value if located else 0.5 * (j.value_before + j.value_after)
         ax.annotate("", xy=(x, j.amplitude_after * factor), xytext=(x, j.amplitude_before * factor),
                     arrowprops=dict(arrowstyle="->", color="k", lw=1.5))
+        where = (f"fold at {x:.6g} {result.unit}" if located else
+                 f"between {j.value_before:.5g} and {j.value_after:.5g} {result.unit} "
+                 "(fold not located)")
         ax.plot([], [], ls="none", marker=r"$\updownarrow$", color="k",
-                label=f"{j.direction} {j.kind} at {x:.4g} {result.unit}".rstrip())
+                label=f"{j.direction} {j.kind}: {where}".rstrip())
     ax.set_xlabel(_param_label(result))
     ax.set_ylabel(f"amplitude of {ylabel}")
     ax.set_title(title or f"Frequency-response curve ({result.mode} sweep)"

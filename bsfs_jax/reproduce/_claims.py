@@ -101,13 +101,18 @@ def judge_preload_optimum(amps):
 
 
 def judge_motion(found_kind: str, found_label: str, wanted_kind: str, wanted_label: str,
-                 amp: float, paper_amp: float):
-    """Figs. 18-21: motion type at one frequency.
+                 amp: float, paper_amp: float, *, reason: str = ""):
+    """Figs. 18-21: motion type at one frequency, from the *verified* label.
 
     Reproduced: the same motion and an amplitude within 25 %; partly: the same motion with
-    another amplitude, or a subharmonic (period-n > 1) of another order; otherwise not.
-    `found_kind`/`wanted_kind` are kept for the callers' records."""
+    another amplitude, or a subharmonic (period-n > 1) of another order; an "unresolved"
+    or "failed" label (no evidence for any motion) is not checkable, with the verifier's
+    `reason`, never a guess; otherwise not reproduced. `found_kind`/`wanted_kind` are kept
+    for the callers' records."""
     amp_text = f"{_um(amp)} (paper {paper_amp * 1e6:.1f} um)"
+    if found_label in ("unresolved", "failed"):
+        return NOT_CHECKABLE, (f"{found_label} (paper: {wanted_label}): "
+                               f"{reason or 'no evidence for any motion'}")
     if found_label == wanted_label:
         return REPRODUCED if abs(amp / paper_amp - 1.0) < 0.25 else PARTLY, (
             f"{found_label} as in the paper; amplitude {amp_text}")

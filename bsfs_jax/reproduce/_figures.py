@@ -10,6 +10,7 @@ axes, as the paper does.
 import numpy as np
 from matplotlib.figure import Figure
 
+from .._numerics import half_range
 from ..plotting import response_figure
 from ._judge import hysteretic_jumps
 
@@ -37,7 +38,7 @@ def compare_figure(trajs: dict, *, title: str, kind: str = "both"):
     styles = ["-", "--", ":", "-."]
     for i, (label, traj) in enumerate(trajs.items()):
         t, x, v = _last_periods(traj)
-        amp = 0.5 * np.ptp(np.asarray(traj.displacement)[:, 2]) * 1e6
+        amp = half_range(np.asarray(traj.displacement)[:, 2]) * 1e6
         lab = f"{label} (amplitude {amp:.2f} um)"
         if kind in ("time", "both"):
             axs[0].plot(t, x, styles[i % 4], lw=1.1, label=lab)
@@ -83,6 +84,16 @@ def waterfall_figure(data: dict, *, param_label: str, title: str, max_harmonic: 
 
 
 def _motion_colours(result, d):
+    """Colour per point: from the verified labels where the sweep has them (grey:
+    unresolved or failed), else from the fixed-transient classifier labels."""
+    if result.verdicts is not None:
+        colours = []
+        for label in result.verdicts["motion"][d]:
+            label = str(label)
+            colours.append("C3" if label == "chaotic" else "C2" if label == "quasi-periodic"
+                           else "C0" if label == "period-1" else "C1"
+                           if label.startswith("period-") else "0.6")
+        return colours
     ms = result.motions()[d]
     colours = []
     for m in ms:
@@ -101,7 +112,8 @@ def bifurcation_figure(results: dict, *, label: str, title: str, unit: str = "")
     """Figs. 24-25: Poincare samples of x_n against frequency, one panel per variant.
 
     Both sweep directions are drawn; colours give the motion class per point
-    (blue period-1, orange period-n > 1, green quasi-periodic, red chaotic).
+    (blue period-1, orange period-n > 1, green quasi-periodic, red chaotic, grey
+    unresolved), verified where the sweep has verdicts.
     """
     n = len(results)
     fig = Figure(figsize=(6.2 * n, 4.8))
@@ -114,7 +126,7 @@ def bifurcation_figure(results: dict, *, label: str, title: str, unit: str = "")
                 ax.plot(np.full(s.shape, f), s, ".", ms=1.6, color=cols[i],
                         alpha=0.7 if name == "up" else 0.45)
         for c, lab in (("C0", "period-1"), ("C1", "period-n > 1"), ("C2", "quasi-periodic"),
-                       ("C3", "chaotic")):
+                       ("C3", "chaotic"), ("0.6", "unresolved")):
             ax.plot([], [], "o", color=c, ms=4, label=lab)
         ax.set_xlabel("excitation frequency [Hz]")
         ax.set_ylabel("x_n at t = kT [um]")
@@ -162,7 +174,7 @@ def exciter_figure(trajs: dict, *, title: str):
         ax.plot((t - t[0]) * 1e3, a, lw=0.9)
         ax.set_xlabel("time [ms]")
         ax.set_ylabel("worktable acceleration [m/s^2]")
-        ax.set_title(f"{f:g} Hz, 100 N: amplitude {0.5 * np.ptp(a):.3f} m/s^2", fontsize=9)
+        ax.set_title(f"{f:g} Hz, 100 N: amplitude {half_range(a):.3f} m/s^2", fontsize=9)
         ax.grid(alpha=0.3)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()

@@ -1,8 +1,16 @@
-"""Verdicts for the sweep-based claims (Figs. 22-27), from sweep results and spectra."""
+"""Verdicts for the sweep-based claims (Figs. 22-27), from sweep results and spectra.
+
+The motion claims of Figs. 24-25 are judged on the verified labels (`res.verdicts`, see
+`bsfs_jax.analysis._verify`) only; the fixed-transient candidate labels
+(`res.motions()`) are reported beside them, never used for a verdict.
+"""
+
+import collections
+import re
 
 import numpy as np
 
-from ._claims import NOT_REPRODUCED, PARTLY, REPRODUCED
+from ._claims import NOT_CHECKABLE, NOT_REPRODUCED, PARTLY, REPRODUCED
 
 
 def _corr(a, b) -> float:
@@ -173,43 +181,159 @@ def hard_jump_at_peak(res) -> bool:
     return bool(downs)
 
 
-def transient_note(variants: dict, f1_hz: float, zeta1: float) -> str:
-    """Where quasi-periodic readings sit far above the first mode, say how slowly that
-    mode's free vibration decays per forcing period there (they may be transients)."""
-    qp = [f for s in variants.values() for f in s["quasi_periodic_hz"]]
-    if not qp:
-        return ""
-    f_lo = min(qp)
-    decay = 2.0 * np.pi * zeta1 * f1_hz / f_lo
-    if decay > 2.0 * TORUS_TOL:
-        return ""
-    return (f" Note: the quasi-periodic readings lie at {f_lo:.0f} Hz and above, where the "
-            f"first mode's free vibration (f1 = {f1_hz:.0f} Hz, zeta1 = {zeta1:.3f}) decays by "
-            f"only {100 * decay:.1f} % per forcing period; at this horizon they cannot be told "
-            "from a decaying transient.")
+#: Fraction of unresolved points above which the absence of verified chaos is not read
+#: as "no chaos" (the unresolved points could hide it).
+UNRESOLVED_MAX = 0.1
+
+
+def reason_kind(reason: str) -> str:
+    """A verifier's reason without its numbers and parenthesised details (to count the
+    most common reasons)."""
+    r = str(reason)
+    while True:
+        r2 = re.sub(r"\([^()]*\)", "", r)
+        if r2 == r:
+            break
+        r = r2
+    r = re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", r)
+    return re.sub(r"\s+", " ", r).strip(" ;,")
+
+
+def _candidate_class(m) -> str:
+    if m.kind == "failed":
+        return "failed"
+    if m.kind == "periodic":
+        return "period-1" if m.period == 1 else "period-n"
+    if m.kind in ("quasi-periodic", "chaotic"):
+        return m.kind
+    return "other"
+
+
+def verified_summary(res) -> dict:
+    """Verified motion along a sweep (both directions) and, beside it, what the
+    fixed-transient candidate labels said at the same points.
+
+    Frequencies [Hz] of verified chaotic, quasi-periodic and period-n (n > 1) points;
+    counts of verified period-1, unresolved (with the most common reasons) and failed
+    points; candidate counts per class and how many candidate period-n / quasi-periodic /
+    chaotic labels the verifier shows to be period-1."""
+    v = res.verdicts
+    if v is None:
+        raise ValueError("the sweep has no verdicts: run it with verify=VerifySettings()")
+    motions = res.motions()
+    out = {"chaotic": set(), "quasi-periodic": set(), "period-n": {}}
+    period1 = unresolved = failed = 0
+    reasons = collections.Counter()
+    cand = collections.Counter()
+    cand_hz = {"period-n": set(), "quasi-periodic": set(), "chaotic": set()}
+    cand_to_p1 = collections.Counter()
+    for d in range(len(res.directions)):
+        for i in range(res.values.size):
+            f = float(res.values[i])
+            label = str(v["motion"][d, i])
+            ok = bool(v["verified"][d, i])
+            c = _candidate_class(motions[d][i])
+            cand[c] += 1
+            if c in cand_hz:
+                cand_hz[c].add(f)
+            if label == "failed":
+                failed += 1
+            elif not ok or label == "unresolved":
+                unresolved += 1
+                reasons[reason_kind(v["reason"][d, i])] += 1
+            elif label == "period-1":
+                period1 += 1
+                if c in cand_hz:
+                    cand_to_p1[c] += 1
+            elif label.startswith("period-"):
+                out["period-n"].setdefault(int(label.split("-")[1]), set()).add(f)
+            elif label in ("chaotic", "quasi-periodic"):
+                out[label].add(f)
+    return {
+        "chaotic_hz": sorted(out["chaotic"]),
+        "quasi_periodic_hz": sorted(out["quasi-periodic"]),
+        "period_n_hz": {int(k): sorted(s) for k, s in sorted(out["period-n"].items())},
+        "period_1_points": period1,
+        "unresolved_points": unresolved,
+        "unresolved_reasons": reasons.most_common(3),
+        "failed_points": failed,
+        "points": int(len(res.directions) * res.values.size),
+        "candidate_counts": {k: int(cand[k]) for k in
+                             ("period-1", "period-n", "quasi-periodic", "chaotic", "other",
+                              "failed")},
+        "candidate_hz": {k: sorted(s) for k, s in cand_hz.items()},
+        "candidate_verified_period_1": {k: int(cand_to_p1[k]) for k in cand_hz},
+    }
+
+
+def describe_verified(summary: dict) -> str:
+    """One sentence: verified labels first, then the candidates beside them."""
+    pn = summary["period_n_hz"]
+    pn_text = "; ".join(f"period-{k} at {_fmt_hz(v, 4)}" for k, v in pn.items()) or \
+        "period-n > 1 at none"
+    text = (f"verified chaotic at {_fmt_hz(summary['chaotic_hz'])}; quasi-periodic at "
+            f"{_fmt_hz(summary['quasi_periodic_hz'])}; {pn_text}; "
+            f"{summary['period_1_points']} of {summary['points']} points verified period-1, "
+            f"{summary['unresolved_points']} unresolved")
+    if summary["unresolved_reasons"]:
+        text += " (" + "; ".join(f"{n} x '{r}'" for r, n in summary["unresolved_reasons"]) + ")"
+    if summary["failed_points"]:
+        text += f", {summary['failed_points']} failed"
+    text += f". {describe_candidates(summary)}"
+    return text
+
+
+def describe_candidates(summary: dict) -> str:
+    cc, to_p1 = summary["candidate_counts"], summary["candidate_verified_period_1"]
+    parts = [f"{cc[k]} {k}" for k in ("period-n", "quasi-periodic", "chaotic") if cc[k]]
+    n_odd = sum(cc[k] for k in ("period-n", "quasi-periodic", "chaotic"))
+    if not n_odd:
+        return "Fixed-transient candidates: no period-n > 1, quasi-periodic or chaotic label"
+    return (f"Fixed-transient candidates: {', '.join(parts)} "
+            f"({sum(to_p1.values())} of these {n_odd} verified period-1)")
+
+
+def _chaos(s: dict):
+    """True (verified chaos), False (none, and few unresolved points) or None (none, but
+    too many unresolved points to rule it out)."""
+    if s["chaotic_hz"]:
+        return True
+    return None if s["unresolved_points"] > UNRESOLVED_MAX * s["points"] else False
 
 
 def judge_chaos_all(variants: dict):
-    """Fig. 24: chaos in the resonance zone for every bearing ball count."""
+    """Fig. 24: chaos in the resonance zone for every bearing ball count (verified labels,
+    `verified_summary`). Without any verified chaos the verdict is "not checkable" when a
+    ball count has more than `UNRESOLVED_MAX` of its points unresolved."""
     texts, with_chaos = [], 0
     for v, s in variants.items():
-        texts.append(f"{v:g} balls: {describe_motions(s)}")
+        texts.append(f"{v:g} balls: {describe_verified(s)}")
         with_chaos += bool(s["chaotic_hz"])
     n = len(variants)
-    verdict = REPRODUCED if with_chaos == n else (PARTLY if with_chaos else NOT_REPRODUCED)
-    return verdict, f"chaos found for {with_chaos} of {n} ball counts. " + "; ".join(texts)
+    unknown = sum(_chaos(s) is None for s in variants.values())
+    verdict = REPRODUCED if with_chaos == n else (
+        PARTLY if with_chaos else (NOT_CHECKABLE if unknown else NOT_REPRODUCED))
+    head = f"verified chaos for {with_chaos} of {n} ball counts"
+    if unknown:
+        head += (f" ({unknown} with more than {100 * UNRESOLVED_MAX:.0f} % of the points "
+                 "unresolved)")
+    return verdict, head + ". " + "; ".join(texts)
 
 
 def judge_nut_balls(variants: dict):
-    """Fig. 25: chaos for 40 and 50 nut balls, none for 60."""
-    chaos = {v: bool(s["chaotic_hz"]) for v, s in variants.items()}
-    texts = [f"{v:g} balls: {describe_motions(s)}" for v, s in variants.items()]
+    """Fig. 25: chaos for 40 and 50 nut balls, none for 60 (verified labels; None where
+    there is no verified chaos but too many unresolved points to rule it out)."""
+    chaos = {v: _chaos(s) for v, s in variants.items()}
+    texts = [f"{v:g} balls: {describe_verified(s)}" for v, s in variants.items()]
     expected = {40.0: True, 50.0: True, 60.0: False}
     hits = sum(chaos.get(k) == e for k, e in expected.items())
     verdict = REPRODUCED if hits == 3 else (PARTLY if hits >= 2 and chaos.get(60.0) is False
                                             or any(chaos.values()) else NOT_REPRODUCED)
-    return verdict, (f"pattern chaos(40, 50, 60) = ({chaos.get(40.0)}, {chaos.get(50.0)}, "
-                     f"{chaos.get(60.0)}), paper (True, True, False). " + "; ".join(texts))
+    if verdict == NOT_REPRODUCED and any(c is None for c in chaos.values()):
+        verdict = NOT_CHECKABLE
+    return verdict, (f"pattern of verified chaos (40, 50, 60) = ({chaos.get(40.0)}, "
+                     f"{chaos.get(50.0)}, {chaos.get(60.0)}), paper (True, True, False). "
+                     + "; ".join(texts))
 
 
 def judge_angles(results: dict, *, rising_expected: bool, secondary: dict,

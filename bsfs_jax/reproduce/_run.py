@@ -5,26 +5,41 @@ Compile sharing (the machine is small): every single steady-state run goes throu
 ball diameters all reuse one compiled function (they only change array values); every
 frequency sweep of Figs. 24-27 uses one `SweepConfig` and one number of points, so the
 continued-sweep kernel is compiled once.
+
+Motion labels come in two kinds. The *fixed-transient* (candidate) label reads the samples
+after a fixed number of forcing periods, as the paper's fixed-length Runge-Kutta runs do
+(`classify_motion`, `SweepResult.motions`). The *verified* label (`verify_points`,
+`verify_sweep`) needs evidence: a converged, stable orbit for period-n, a Lyapunov
+exponent whose 95 % interval excludes zero plus a broadband spectrum for chaos, and so on;
+otherwise the point is "unresolved". The claims of Figs. 18-21 and 24-25 are judged on the
+verified labels only.
 """
 
 import dataclasses
 import hashlib
+import json
 import time
 from pathlib import Path
 
 import equinox as eqx
 import numpy as np
 
+from .._files import jsonable
+from .._numerics import half_range
 from ..analysis import (
     ClassifierSettings,
     SweepConfig,
+    VerifySettings,
     amplitude_spectrum,
     bsfs_problem,
     classify_motion,
     largest_lyapunov,
     load_sweep,
     sweep,
+    verify_points,
+    verify_sweep,
 )
+from ..analysis._verify import slowest_decay_rate
 from ..machine import modes, simulate
 from ..model import Sinusoid, build_system, vector_field
 from ..params import preset as load_preset
@@ -69,6 +84,9 @@ class ReproduceSettings:
       swept up and down (continued); `sweep_transient`, `sweep_continued_transient`,
       `sweep_periods`, `sweep_samples_per_period`: its horizon.
     - `rtol`, `atol`, `solver`: integration settings.
+    - `verify_block_periods`, `verify_max_blocks`, `verify_min_blocks`: the verifier's
+      continuation blocks for points whose samples lead to no orbit (`VerifySettings`;
+      the other verifier settings are its defaults).
     """
 
     preset: str = "paper-tuned"
@@ -93,6 +111,9 @@ class ReproduceSettings:
     rtol: float = 1e-8
     atol: float = 1e-12
     solver: str = "dopri5-fused"
+    verify_block_periods: int = 256
+    verify_max_blocks: int = 8
+    verify_min_blocks: int = 3
     quick: bool = False
 
     @classmethod
@@ -102,12 +123,20 @@ class ReproduceSettings:
                     lyapunov_periods=24, n_diameters=4, sweep_points=6, sweep_start_hz=200.0,
                     sweep_stop_hz=2400.0, sweep_transient=60, sweep_continued_transient=12,
                     sweep_periods=12, sweep_samples_per_period=16, exciter_periods=6,
-                    exciter_transient=20, rtol=1e-7, atol=1e-11, quick=True)
+                    exciter_transient=20, rtol=1e-7, atol=1e-11, verify_block_periods=64,
+                    verify_max_blocks=2, verify_min_blocks=1, quick=True)
         base.update(overrides)
         return cls(**base)
 
     def solver_settings(self) -> SolverSettings:
         return SolverSettings(rtol=float(self.rtol), atol=float(self.atol), solver=self.solver)
+
+    def verify_settings(self) -> VerifySettings:
+        """The verifier's settings (its defaults, with this run's block budget)."""
+        return VerifySettings(block_periods=int(self.verify_block_periods),
+                              max_blocks=int(self.verify_max_blocks),
+                              min_blocks=int(self.verify_min_blocks),
+                              align_periods=min(16, int(self.verify_block_periods) // 8))
 
 
 def _steady(system, frequency_hz, force_n, s: ReproduceSettings, *, periods=None,
@@ -125,7 +154,7 @@ def _traj_numbers(traj, dof=2) -> dict:
     return {
         "status": int(result_codes(traj.result)),
         "status_message": str(result_text(traj.result)),
-        "amplitude_m": float(0.5 * (x.max() - x.min())),
+        "amplitude_m": float(half_range(x)),
         "max_abs_m": float(np.abs(x).max()),
         "mean_m": float(x.mean()),
     }
@@ -170,12 +199,21 @@ def thermal_experiments(params, s: ReproduceSettings) -> dict:
     return out, trajs
 
 
-def motion_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
-    """Figs. 18-21: steady response, motion class and largest Lyapunov exponent."""
+def motion_experiments(params, s: ReproduceSettings, *, cases=MOTION_CASES,
+                       transient_periods: int | None = None) -> tuple[dict, dict]:
+    """Figs. 18-21: steady response, motion class and largest Lyapunov exponent.
+
+    Each point gets two labels: the fixed-transient one (`motion`, `reading`: the samples
+    after `transient_periods` forcing periods, default `s.transient_periods`) and the
+    verified one (`verified_motion` with its evidence, from `verify_points` continuing the
+    same run). `free_vibration_left` is exp(-sigma t) at the start of the record: the part
+    of the slowest linear mode's free vibration (decay rate sigma) the transient leaves.
+    """
     system, _ = _system_and_modes(params)
+    n_tr = s.transient_periods if transient_periods is None else int(transient_periods)
     out, trajs = {}, {}
-    for key, f, paper_label, paper_amp in MOTION_CASES:
-        traj = _steady(system, f, s.force_n, s)
+    for key, f, paper_label, paper_amp in cases:
+        traj = _steady(system, f, s.force_n, s, transient=n_tr)
         row = _traj_numbers(traj)
         period = 1.0 / f
         lyap = largest_lyapunov(vector_field, traj.final_state, (system, Sinusoid(s.force_n, f)),
@@ -190,7 +228,7 @@ def motion_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
         state = np.asarray(traj.state)
         x = state[:, 2]
         motion = classify_motion(strobe, signal=x[:-1], lyapunov_per_period=lam * period,
-                                 scale=0.5 * np.ptp(state, axis=0), result=traj.result,
+                                 scale=half_range(state, axis=0), result=traj.result,
                                  settings=ClassifierSettings(tol=2e-3))
         freqs, amp = amplitude_spectrum(x[:-1], period / s.samples_per_period, window="rect")
         sub = subharmonic_fraction(amp, freqs * period, guard=0)
@@ -198,10 +236,52 @@ def motion_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
                    motion=motion.label, motion_kind=motion.kind,
                    reading=point_class(motion, sub), subharmonic_fraction=sub,
                    spectral_line_fraction=motion.line_fraction, paper_motion=paper_label,
-                   paper_amplitude_m=paper_amp)
+                   paper_amplitude_m=paper_amp, transient_periods=n_tr,
+                   record_periods=s.periods)
         out[key] = row
         trajs[key] = traj
+    _verify_motion(params, s, out, trajs)
     return out, trajs
+
+
+def _verify_motion(params, s: ReproduceSettings, rows: dict, trajs: dict) -> None:
+    """Add the verified label and its evidence to each row of `motion_experiments`."""
+    keys = list(rows)
+    freqs = np.array([rows[k]["frequency_hz"] for k in keys], dtype=float)
+    problem = bsfs_problem(params, force_n=s.force_n)
+    strobes = np.array([np.asarray(trajs[k].stroboscopic()) for k in keys])
+    amps = np.array([half_range(np.asarray(trajs[k].state), axis=0) for k in keys])
+    n_tr = np.array([rows[k]["transient_periods"] for k in keys], dtype=float)
+    n_rec = np.array([rows[k]["record_periods"] for k in keys], dtype=float)
+    ok = np.array([rows[k]["status"] == 0 for k in keys])
+    verdicts = {}
+    if ok.any():
+        got = verify_points(problem, freqs[ok], strobes[ok], amps[ok], 1.0 / freqs[ok],
+                            (n_tr[ok] + n_rec[ok]) / freqs[ok], settings=s.verify_settings())
+        for j, k in enumerate(np.array(keys)[ok]):
+            verdicts[str(k)] = {name: got[name][j] for name in got}
+    sigma = slowest_decay_rate(problem, freqs)
+    for j, k in enumerate(keys):
+        v = verdicts.get(k)
+        row = rows[k]
+        left = float(np.exp(-sigma[j] * n_tr[j] / freqs[j]))
+        row.update(decay_rate_per_s=float(sigma[j]), free_vibration_left=left)
+        if v is None:
+            row.update(verified_motion="failed", verified=False, verify_reason=(
+                f"the fixed-transient run failed: {row['status_message']}"))
+            continue
+        row.update(
+            verified_motion=str(v["motion"]), verified=bool(v["verified"]),
+            verified_period_n=int(v["period_n"]),
+            verified_amplitude_m=float(v["amplitude"]),
+            orbit_residual=float(v["orbit_residual"]),
+            max_multiplier=float(v["max_multiplier"]),
+            verified_lyapunov_per_period=float(v["lyapunov_per_period"]),
+            lyapunov_low=float(v["lyapunov_low"]), lyapunov_high=float(v["lyapunov_high"]),
+            rotation_number=float(v["rotation_number"]),
+            curve_error=float(v["curve_error"]),
+            verified_line_fraction=float(v["line_fraction"]),
+            verify_transient_s=float(v["transient"]), verify_reason=str(v["reason"]))
 
 
 def diameter_experiments(params, s: ReproduceSettings) -> dict:
@@ -219,7 +299,7 @@ def diameter_experiments(params, s: ReproduceSettings) -> dict:
             dt = float(traj.period) / s.samples_per_period
             freqs, amp = amplitude_spectrum(x, dt, window="rect")
             spectra.append(amp)
-            amps.append(0.5 * np.ptp(x))
+            amps.append(half_range(x))
             # Amplitudes at the forcing frequency and its 2nd..4th multiples.
             idx = [int(np.argmin(np.abs(freqs - k * f))) for k in (1, 2, 3, 4)]
             harmonics.append([float(amp[i]) for i in idx])
@@ -231,13 +311,20 @@ def diameter_experiments(params, s: ReproduceSettings) -> dict:
     return out
 
 
+#: The sweeps whose motion labels are verified (the bifurcation diagrams' claims).
+VERIFIED_SWEEPS = ("fig24", "fig25")
+
+
 def sweep_experiments(params, s: ReproduceSettings, progress: bool = False,
                       cache_dir=None) -> dict:
     """Figs. 24-27: continued up/down frequency sweeps of each variant (one compile).
 
-    With `cache_dir`, each finished sweep is saved there (`SweepResult.save`) with a key of
-    its parameters and settings; a later run with the same key loads it instead of
-    recomputing (so the report can be regenerated cheaply).
+    The sweeps of `VERIFIED_SWEEPS` (Figs. 24-25) also get verified labels
+    (`verify_sweep`, `res.verdicts`); Figs. 26-27 are about amplitudes and jumps only.
+    With `cache_dir`, each finished sweep is saved there (`SweepResult.save`, verdicts
+    included) with a key of its parameters and settings; a later run with the same key
+    loads it instead of recomputing (so the report can be regenerated cheaply), and a
+    cached sweep without verdicts (or with other verifier settings) is only verified.
     """
     freqs = np.linspace(s.sweep_start_hz, s.sweep_stop_hz, s.sweep_points)
     cfg = SweepConfig(transient_periods=s.sweep_transient,
@@ -250,13 +337,15 @@ def sweep_experiments(params, s: ReproduceSettings, progress: bool = False,
     cache, out = {}, {}
     for fig, name, values, label, unit in SWEEP_VARIANTS:
         results = {}
+        verify = fig in VERIFIED_SWEEPS
         for v in values:
             p = params.replace(name, v)
             key = _sweep_key(p, freqs, s)
+            path = None if cache_dir is None else Path(cache_dir) / f"{name}={v:g}.nc"
             if key not in cache:
-                cache[key] = _cached_sweep(p, freqs, cfg, s, key, progress,
-                                           None if cache_dir is None else
-                                           Path(cache_dir) / f"{name}={v:g}.npz")
+                cache[key] = _cached_sweep(p, freqs, cfg, s, key, progress, path, verify)
+            elif verify and not _has_verdicts(cache[key], s):
+                cache[key] = _verify_cached(p, cache[key], s, progress, path)
             results[v] = cache[key]
         mode_hz = {v: float(np.asarray(_system_and_modes(params.replace(name, v))[1])[0])
                    for v in values}
@@ -276,20 +365,47 @@ def _sweep_key(params, freqs, s: ReproduceSettings) -> str:
     return h.hexdigest()[:24]
 
 
-def _cached_sweep(params, freqs, cfg, s, key, progress, path):
+def _verify_tag(s: ReproduceSettings) -> str:
+    return json.dumps(jsonable(s.verify_settings().to_dict()), sort_keys=True)
+
+
+def _has_verdicts(res, s: ReproduceSettings) -> bool:
+    return res.verdicts is not None and res.metadata.get("reproduce_verify") == _verify_tag(s)
+
+
+def _verify_cached(params, res, s: ReproduceSettings, progress, path):
+    """Verify every point of a continued sweep (each point ran the continued transient)
+    and save it again."""
+    problem = bsfs_problem(params, force_n=s.force_n)
+    n_tr = np.full(res.values.size, s.sweep_continued_transient)
+    res.verdicts = verify_sweep(problem, res, settings=s.verify_settings(), transient=n_tr,
+                                progress=progress)
+    res.metadata["reproduce_verify"] = _verify_tag(s)
+    res.metadata["verify_settings"] = jsonable(s.verify_settings().to_dict())
+    if path is not None:
+        res.save(path)
+    return res
+
+
+def _cached_sweep(params, freqs, cfg, s, key, progress, path, verify: bool = False):
+    res = None
     if path is not None and path.exists():
         try:
             res = load_sweep(path)
             if res.metadata.get("reproduce_key") == key:
                 res.metadata["loaded_from_cache"] = True
-                return res
+            else:
+                res = None
         except (OSError, ValueError, KeyError):
-            pass  # unreadable or stale: recompute
-    res = sweep(bsfs_problem(params, force_n=s.force_n), freqs, mode="continued",
-                direction="both", config=cfg, progress=progress,
-                metadata={"reproduce_key": key})
-    if path is not None:
-        res.save(path)
+            res = None  # unreadable or stale: recompute
+    if res is None:
+        res = sweep(bsfs_problem(params, force_n=s.force_n), freqs, mode="continued",
+                    direction="both", config=cfg, progress=progress,
+                    metadata={"reproduce_key": key})
+        if path is not None:
+            res.save(path)
+    if verify and not _has_verdicts(res, s):
+        res = _verify_cached(params, res, s, progress, path)
     return res
 
 
@@ -309,8 +425,8 @@ def exciter_experiments(params, s: ReproduceSettings) -> tuple[dict, dict]:
         a = np.asarray(traj.acceleration)[:, 2]
         out[f"{f:.0f}"] = {"frequency_hz": f, "status": int(result_codes(traj.result)),
                            "status_message": str(result_text(traj.result)),
-                           "acceleration_amplitude_m_s2": float(0.5 * np.ptp(a)),
-                           "displacement_amplitude_m": float(0.5 * np.ptp(
+                           "acceleration_amplitude_m_s2": float(half_range(a)),
+                           "displacement_amplitude_m": float(half_range(
                                np.asarray(traj.displacement)[:, 2]))}
         trajs[f] = traj
     return out, trajs

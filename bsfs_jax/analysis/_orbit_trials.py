@@ -1,0 +1,116 @@
+"""Period-n evidence for the verifier: orbit trials from sampled states, accepted only
+with a converged residual, a minimal period, multipliers inside the unit circle and
+samples that follow the orbit's linearisation (see `_verify.py`)."""
+
+import numpy as np
+
+from .._numerics import half_range
+from . import _evidence as ev
+from ._classify import strobe_period
+from ._orbit_check import check_orbits
+
+PERIODIC_PREFIX = "period-"
+
+
+def scale_of(amplitude, y):
+    """Per-coordinate scale of a point: max(|amplitude|, |y|), floored at 1e-3 of the
+    largest (ones if all vanish)."""
+    s = np.maximum(np.abs(np.asarray(amplitude, dtype=float)), np.abs(np.asarray(y)))
+    peak = np.max(s) if s.size else 0.0
+    return np.maximum(s, 1e-3 * peak if peak > 0 else 1.0)
+
+
+class OrbitTrials:
+    """Orbit trials of one problem under `VerifySettings`; `observe` is the coordinate
+    whose amplitude is reported."""
+
+    def __init__(self, problem, settings, observe: int):
+        self.p, self.s, self.obs = problem, settings, observe
+
+    def orbits(self, items, again: bool = True):
+        """items: list of (value, y, scale, n) -> list of OrbitCheck rows (host)."""
+        out = []
+        s = self.s
+        for k in range(0, len(items), s.batch):
+            part = items[k:k + s.batch]
+            pad = part + [part[-1]] * (s.batch - len(part)) if len(items) > s.batch else part
+            vals, ys, scs, ns = (np.array([it[j] for it in pad]) for j in range(4))
+            chk = check_orbits(self.p, vals, ys, scs, ns, tol=s.orbit_tol,
+                               max_steps=s.orbit_max_steps, max_period=s.max_period,
+                               settings=s.orbit_settings)
+            host = {f: np.asarray(getattr(chk, f)) for f in
+                    ("state", "converged", "residual", "multipliers", "strobe", "samples",
+                     "jac_distance", "monodromy")}
+            out += [{f: a[j] for f, a in host.items()} for j in range(len(part))]
+        # Multipliers from a matrix evaluated far from the orbit: evaluate them at it.
+        far = [k for k, c in enumerate(out) if c["converged"] and
+               c["jac_distance"] > s.jac_tol]
+        if again and far:
+            redo = self.orbits([(items[k][0], out[k]["state"], items[k][2], items[k][3])
+                                for k in far], again=False)
+            for k, c in zip(far, redo, strict=True):
+                out[k] = c
+        return out
+
+    def accept(self, chk, n, strobe, scale, period):
+        """A verdict dict if the orbit check `chk` (period n) verifies, else a reason."""
+        if not chk["converged"]:
+            return None, f"no period-{n} orbit from the sampled state (Newton residual " \
+                         f"{chk['residual']:.2g})"
+        mu = float(np.max(np.abs(chk["multipliers"])))
+        if not mu < 1.0:
+            return None, f"the period-{n} orbit found is unstable (max |mu| = {mu:.4f})"
+        m = ev.minimal_period(chk["state"], chk["strobe"], n, scale)
+        pts = np.concatenate([chk["state"][None], chk["strobe"][:m - 1]], axis=0)
+        dev, misfit = ev.linear_approach(strobe, pts, chk["monodromy"], scale,
+                                         self.s.near_tol)
+        if misfit > self.s.linear_tol:
+            return None, (f"a stable period-{m} orbit exists, but the samples do not follow"
+                          f" its linearisation (misfit {misfit:.2f}, deviation {dev:.2g})")
+        x = chk["samples"][:, self.obs]
+        amp = float(half_range(np.append(x[np.isfinite(x)], chk["state"][self.obs])))
+        return {"motion": f"{PERIODIC_PREFIX}{m}", "verified": True, "period_n": m,
+                "amplitude": amp, "orbit_residual": float(chk["residual"]),
+                "max_multiplier": mu, "lyapunov_per_period": float(np.log(mu) / n),
+                "reason": (f"stable period-{m} orbit: residual {chk['residual']:.1e}, "
+                           f"max |mu| {mu:.4f}; the samples approach it along its "
+                           f"linearisation (deviation {dev:.1e}, misfit {misfit:.2f})")}, None
+
+    def try_orbits(self, entries):
+        """entries: list of (key, value, strobe (k, d), amplitude (d,), period, extra_ns).
+        Returns ({key: verdict} for the verified ones, {key: reason} for the others).
+        First n = 1 and the extra periods; then, for the points left, the period of the
+        samples' loose repetition."""
+        found, reasons = self._try(entries, first=True)
+        rest = [e for e in entries if e[0] not in found]
+        more, why = self._try(rest, first=False)
+        found.update(more)
+        for k, r in why.items():
+            reasons.setdefault(k, r)
+        return found, reasons
+
+    def _try(self, entries, first: bool):
+        items, owners = [], []
+        for key, value, strobe, amp, period, extra in entries:
+            y = strobe[-1]
+            sc = scale_of(amp, y)
+            if first:
+                ns = sorted({1, *extra})
+            else:
+                cand = strobe_period(strobe, scale=sc, max_period=self.s.max_period,
+                                     tol=self.s.candidate_tol)
+                ns = [cand] if cand > 1 and cand not in extra else []
+            for n in ns:
+                items.append((value, y, sc, n))
+                owners.append((key, n, strobe, sc, period))
+        checks = self.orbits(items) if items else []
+        found, reasons = {}, {}
+        for (key, n, strobe, sc, period), chk in zip(owners, checks, strict=True):
+            if key in found:
+                continue
+            v, why = self.accept(chk, n, strobe, sc, period)
+            if v is not None:
+                found[key] = v
+            elif key not in reasons or n == 1:
+                reasons[key] = why
+        return found, reasons

@@ -1,0 +1,344 @@
+"""Verified steady states: a motion label only with its evidence, else "unresolved".
+
+A sweep samples each point's response after a transient; the samples alone cannot tell a
+periodic orbit still shedding a lightly damped mode from a torus or period-n motion. Here
+every label needs evidence (generic over any forced field, used on textbook systems and
+the ball screw alike):
+
+- **period-n**: Newton's method on Phi^{nT}(y) = y from the sampled state converges
+  (scaled residual below `orbit_tol`), n is minimal, every Floquet multiplier lies inside
+  the unit circle, and the sampled trajectory approaches the orbit (its stroboscopic
+  distance to the orbit falls, or is already within `near_tol`). Candidates: n = 1 and
+  the period of the samples' loose repetition.
+- **quasi-periodic**: after the trajectory stopped drifting, the largest Lyapunov exponent
+  per forcing period is zero within its 95 % confidence interval (independent segments),
+  the rotation number of the stroboscopic points is not locked to p/q (q <= max_period),
+  the points lie on one smooth closed curve, and no stable orbit of period <= max_period
+  is found from the sampled state.
+- **chaotic**: lambda T > 0 with a confidence interval that excludes 0, and a broadband
+  spectrum (power fraction in the strongest lines below `line_fraction_min`).
+
+Points that satisfy none are "unresolved", with the reason. Points with no orbit from
+the sweep's samples are continued in blocks (`block_periods`), with the engine tried
+again after each block (it jumps to an orbit rather than waiting for the decay), until a
+verdict or the budget (`budget_time_constants` / slowest linear decay rate).
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._numerics import half_range
+from ..solvers import SolverSettings, result_codes, result_text
+from . import _evidence as ev
+from ._extend import run_block
+from ._lyapunov import initial_tangent
+from ._orbit_check import CHECK_SETTINGS
+from ._orbit_trials import OrbitTrials, scale_of
+from ._spectrum import amplitude_spectrum, line_fraction
+
+QUASI_PERIODIC, CHAOTIC, UNRESOLVED, FAILED = "quasi-periodic", "chaotic", "unresolved", \
+    "failed"
+
+
+@dataclasses.dataclass(frozen=True)
+class VerifySettings:
+    """How labels are verified (static; see the module docstring).
+
+    - `max_period`: largest n of period-n orbits looked for.
+    - `orbit_tol`, `orbit_max_steps`, `orbit_settings`: Newton's relative tolerance on the
+      scaled residual, its (chord) iterations, and the ODE settings of the orbit checks;
+      `jac_tol`: where the orbit lies further than this (scaled) from the sampled state,
+      its multipliers are evaluated again at the orbit.
+    - `near_tol`: scaled stroboscopic distance under which the samples sit on the orbit
+      (the sweep's own integration error is ~1e-7 of the amplitude); farther samples
+      must follow the orbit's linearisation, e_{j+n} = M e_j, to a relative misfit
+      below `linear_tol` (so they decay onto it: every multiplier is inside the unit
+      circle). A trajectory on another attractor does not.
+    - `candidate_tol`: loose repetition tolerance that proposes period-n candidates.
+    - `decay_folds`, `min_transient_periods`: the sweep's minimum transient is
+      `decay_folds` time constants of the slowest linear mode (at least
+      `min_transient_periods` periods).
+    - `block_periods`, `block_samples`: length of one continuation block, and samples
+      per period kept for its spectrum; `max_blocks`, `budget_time_constants`: when to
+      give up (blocks, or time in units of the slowest decay time, but never before
+      `min_blocks` blocks).
+    - `align_periods`: tangent alignment periods dropped from the first block's growth.
+    - `segments`: independent segments of the exponent's confidence interval.
+    - `lyapunov_zero`: largest |lambda T| (and half-width) read as zero (a torus).
+    - `drift_tol`: relative change of the section's mean and spread between blocks
+      under which the trajectory has stopped drifting.
+    - `rotation_tol`, `curve_tol`, `line_fraction_min`: torus and chaos thresholds.
+    - `batch`: points checked in lockstep.
+    - `run_settings`: ODE settings of the continuation blocks (as a sweep's).
+    """
+
+    max_period: int = 16
+    orbit_tol: float = 1e-6
+    jac_tol: float = 1e-4
+    orbit_max_steps: int = 16
+    orbit_settings: SolverSettings = CHECK_SETTINGS
+    near_tol: float = 1e-4
+    linear_tol: float = 0.25
+    candidate_tol: float = 0.05
+    decay_folds: float = 3.0
+    min_transient_periods: int = 8
+    block_periods: int = 256
+    block_samples: int = 8
+    max_blocks: int = 8
+    min_blocks: int = 3
+    budget_time_constants: float = 60.0
+    align_periods: int = 16
+    segments: int = 8
+    lyapunov_zero: float = 0.01
+    drift_tol: float = 0.02
+    rotation_tol: float = 1e-3
+    curve_tol: float = 0.05
+    line_fraction_min: float = 0.99
+    batch: int = 16
+    run_settings: SolverSettings = SolverSettings(solver="dopri5-fused", max_steps=4_000_000)
+
+    def __post_init__(self):
+        if not 1 <= int(self.max_period) <= 64:
+            raise ValueError(f"VerifySettings.max_period must be in 1..64, got {self.max_period}")
+        if int(self.block_periods) < 4 * int(self.segments):
+            raise ValueError("VerifySettings.block_periods must be at least 4 x segments")
+        if not 0 <= int(self.align_periods) < int(self.block_periods):
+            raise ValueError("VerifySettings.align_periods must be in [0, block_periods)")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+#: Names and units of the per-point verdict arrays (all (D, N)).
+VERDICT_FIELDS = {
+    "motion": "label: period-n, quasi-periodic, chaotic, unresolved or failed",
+    "verified": "true where the label carries its evidence",
+    "period_n": "n of a verified period-n orbit (0 otherwise)",
+    "amplitude": "half peak-to-peak of the observed coordinate (orbit or last block)",
+    "orbit_residual": "scaled Newton residual of the orbit (NaN: no orbit)",
+    "max_multiplier": "largest Floquet multiplier modulus (NaN: no orbit)",
+    "lyapunov_per_period": "largest Lyapunov exponent x T (orbit: ln max|mu| / n)",
+    "lyapunov_low": "95 % confidence interval of lambda T, low end",
+    "lyapunov_high": "95 % confidence interval of lambda T, high end",
+    "rotation_number": "rotation number of the section [turns per period]",
+    "curve_error": "distance of the section from one smooth closed curve (relative)",
+    "line_fraction": "power fraction in the strongest spectral lines",
+    "transient": "time integrated before the evidence [time unit of the problem]",
+    "reason": "why the label is (or is not) verified",
+}
+
+
+@eqx.filter_jit
+def _decay_rates(problem, values):
+    def one(v):
+        args, _ = problem.setup(problem.data, v)
+        jac = jax.jacfwd(lambda y: problem.vector_field(0.0, y, args))(problem.y0)
+        rate = -jnp.real(jnp.linalg.eigvals(jac))
+        return jnp.where(jnp.all(rate > 0), jnp.min(rate), jnp.nan)
+
+    return jax.vmap(one)(values)
+
+
+def slowest_decay_rate(problem, values) -> np.ndarray:
+    """Slowest decay rate min(-Re lambda) [1/time unit] of the linearisation at
+    `problem.y0` for each value (NaN where some eigenvalue does not decay)."""
+    return np.asarray(_decay_rates(problem, jnp.asarray(values, dtype=float)))
+
+
+def minimum_transient(problem, values, periods, settings: VerifySettings = VerifySettings(),
+                      fallback: int = 200) -> np.ndarray:
+    """Transient periods per value: `decay_folds` slowest-mode time constants, at least
+    `min_transient_periods`; `fallback` periods where no decay rate is known."""
+    sigma = slowest_decay_rate(problem, values)
+    per = np.asarray(periods, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n = np.ceil(settings.decay_folds / (sigma * per))
+    n = np.where(np.isfinite(n), n, fallback)
+    return np.maximum(n, settings.min_transient_periods).astype(int)
+
+
+def _empty(shape):
+    out = {name: np.full(shape, np.nan) for name in VERDICT_FIELDS}
+    out["motion"] = np.full(shape, UNRESOLVED, dtype=object)
+    out["reason"] = np.full(shape, "", dtype=object)
+    out["verified"] = np.zeros(shape, dtype=bool)
+    out["period_n"] = np.zeros(shape, dtype=int)
+    return out
+
+
+def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
+                  settings: VerifySettings = VerifySettings(), progress: bool = False):
+    """Verify K sampled points: `strobes` (K, k, d) stroboscopic samples ending at the
+    state to continue from; `amplitudes` (K, d); `periods` (K,); `transients` (K,) time
+    already integrated. Returns a dict of (K,) verdict arrays (`VERDICT_FIELDS`)."""
+    s = settings
+    K = len(values)
+    out = _empty((K,))
+    obs = problem.observe
+    ver = OrbitTrials(problem, s, obs)
+    entries = [(k, values[k], strobes[k], amplitudes[k], periods[k], ()) for k in range(K)]
+    found, reasons = ver.try_orbits(entries)
+    for k, v in found.items():
+        for f, x in v.items():
+            out[f][k] = x
+        out["transient"][k] = transients[k]
+    pending = [k for k in range(K) if k not in found]
+    sigma = slowest_decay_rate(problem, values[pending]) if pending else np.array([])
+    budget = {k: max(s.budget_time_constants / sig if np.isfinite(sig) else 0.0,
+                     s.min_blocks * s.block_periods * periods[k])
+              for k, sig in zip(pending, sigma, strict=True)}
+    state = {k: strobes[k][-1] for k in pending}
+    tangent = {k: np.asarray(initial_tangent(problem.n_states)) for k in pending}
+    used = {k: float(transients[k]) for k in pending}
+    last = {}
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(pending), unit="pt", disable=not progress or not pending,
+               desc="verify (long runs)")
+    for b in range(s.max_blocks):
+        pending = [k for k in pending if used[k] - transients[k] < budget[k]]
+        if not pending:
+            break
+        blk = run_block(problem, values[pending], np.array([state[k] for k in pending]),
+                        np.array([tangent[k] for k in pending]), periods=s.block_periods,
+                        samples_per_period=s.block_samples, settings=s.run_settings)
+        entries, stats = [], {}
+        for j, k in enumerate(pending):
+            if blk.status[j] != 0:
+                out["motion"][k], out["reason"][k] = FAILED, "integration failed while " \
+                    "continuing the run"
+                continue
+            strobe = blk.samples[j, :, -1, :]
+            strobe = np.concatenate([state[k][None], strobe], axis=0)
+            state[k], tangent[k] = blk.state[j], blk.tangent[j]
+            used[k] += s.block_periods * periods[k]
+            x = blk.samples[j].reshape(-1, problem.n_states)
+            amp = half_range(x, axis=0)
+            logs = blk.log_growth[j][s.align_periods if b == 0 else 0:]
+            stats[k] = (strobe, amp, logs, x[:, obs])
+            entries.append((k, values[k], strobe, amp, periods[k], ()))
+        found, why = ver.try_orbits(entries)
+        done = set()
+        for k, v in found.items():
+            for f, x in v.items():
+                out[f][k] = x
+            out["transient"][k] = used[k] - s.block_periods * periods[k]
+            done.add(k)
+        for k, (strobe, amp, logs, sig) in stats.items():
+            if k in done:
+                continue
+            verdict = _judge(ver, k, values[k], strobe, amp, logs, sig, periods[k],
+                             last.get(k), s)
+            last[k] = (strobe, amp, logs)
+            if verdict is not None:
+                for f, x in verdict.items():
+                    out[f][k] = x
+                out["transient"][k] = used[k] - s.block_periods * periods[k]
+                done.add(k)
+            else:
+                reasons[k] = why.get(k, reasons.get(k, ""))
+                out["amplitude"][k] = amp[obs]
+        failed = {k for k in pending if out["motion"][k] == FAILED}
+        bar.update(len(done | failed))
+        pending = [k for k in pending if k not in done and k not in failed]
+    bar.close()
+    for k in range(K):
+        if out["motion"][k] == UNRESOLVED and not out["reason"][k]:
+            spent = used.get(k, transients[k]) - transients[k]
+            out["reason"][k] = (f"no verdict within the budget ({spent:.3g} time units of "
+                                f"continued integration); last: {reasons.get(k, '')}")
+            out["transient"][k] = used.get(k, transients[k])
+    return out
+
+
+def _judge(ver, k, value, strobe, amp, logs, signal, period, prev, s: VerifySettings):
+    """Verdict of a non-periodic block (None: keep integrating)."""
+    mean, lo, hi = ev.exponent_interval(logs, s.segments)
+    res = {"lyapunov_per_period": mean, "lyapunov_low": lo, "lyapunov_high": hi,
+           "amplitude": amp[ver.obs]}
+    if prev is None or not np.isfinite(mean):
+        return None
+    p_strobe, p_amp, _ = prev
+    # Drift: the section's mean and spread change between consecutive blocks by more
+    # than `drift_tol` of the amplitude plus their sampling error (a chaotic section's
+    # block statistics fluctuate; a decaying transient's spread shrinks steadily).
+    sc = scale_of(np.maximum(amp, p_amp), strobe[-1])
+    spread = np.maximum(strobe.std(0), p_strobe.std(0))
+    noise = 3.0 * spread * np.sqrt(2.0 * s.segments / strobe.shape[0])
+    d_mean = np.abs(strobe.mean(0) - p_strobe.mean(0))
+    d_std = np.abs(strobe.std(0) - p_strobe.std(0))
+    if np.any(d_mean > s.drift_tol * sc + noise) or np.any(d_std > s.drift_tol * sc + noise):
+        return None
+    if hi < -s.lyapunov_zero / 10:
+        return None  # contracting: an orbit should be reached; keep going
+    _, spec = amplitude_spectrum(signal, period / s.block_samples)
+    frac = line_fraction(spec, lines=max(1, min(16, spec.size // 10)))
+    res["line_fraction"] = frac
+    if lo > 0:
+        if frac < s.line_fraction_min:
+            return {**res, "motion": CHAOTIC, "verified": True,
+                    "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] (95 %) > 0, "
+                              f"broadband spectrum (line fraction {frac:.3f})"}
+        return {**res, "motion": UNRESOLVED, "verified": False,
+                "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] > 0, but the "
+                          f"spectrum is discrete (line fraction {frac:.3f})"}
+    if not (lo <= 0 <= hi and max(abs(lo), abs(hi)) <= s.lyapunov_zero):
+        return {**res, "motion": UNRESOLVED, "verified": False,
+                "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}]: neither zero "
+                          f"within {s.lyapunov_zero} nor positive"}
+    rho = ev.rotation_number(strobe)
+    err = ev.closed_curve_error(strobe)
+    lock = ev.locked_to(rho, s.max_period, s.rotation_tol)
+    res.update(rotation_number=rho, curve_error=err)
+    if lock is not None or not err <= s.curve_tol:
+        why = (f"rotation number {rho:.4f} locked to {lock[0]}/{lock[1]}" if lock else
+               f"section is not one smooth closed curve (error {err:.3f})")
+        return {**res, "motion": UNRESOLVED, "verified": False,
+                "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] ~ 0, but {why}"}
+    found, _ = ver.try_orbits([(k, value, strobe, amp, period,
+                                tuple(range(2, s.max_period + 1)))])
+    if found:
+        return found[k]
+    return {**res, "motion": QUASI_PERIODIC, "verified": True,
+            "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] (95 %) ~ 0, rotation "
+                      f"number {rho:.4f} not locked (q <= {s.max_period}), closed curve "
+                      f"(error {err:.3f}), no stable orbit of period <= {s.max_period}"}
+
+
+def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings(),
+                 transient=None, progress: bool = False) -> dict:
+    """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`) for every point of a sweep.
+
+    `transient` (N,) periods integrated before the record (default the sweep's config).
+    """
+    D, N = result.strobe.shape[:2]
+    out = _empty((D, N))
+    codes = result_codes(result.result)
+    texts = result_text(result.result)
+    n_tr = (np.full(N, result.config.get("transient_periods", 0)) if transient is None
+            else np.asarray(transient))
+    P = result.strobe.shape[2] - 1
+    keys = [(d, i) for d in range(D) for i in range(N) if codes[d, i] == 0]
+    for d in range(D):
+        for i in range(N):
+            if codes[d, i] != 0:
+                out["motion"][d, i] = FAILED
+                out["reason"][d, i] = f"the sweep's integration failed: {texts[d, i]}"
+    if keys:
+        vals = np.array([result.values[i] for _, i in keys])
+        per = np.array([result.period[i] for _, i in keys])
+        got = verify_points(
+            problem, vals, np.array([result.strobe[d, i] for d, i in keys]),
+            np.array([result.amplitude[d, i] for d, i in keys]), per,
+            np.array([(n_tr[i] + P) * result.period[i] for _, i in keys]),
+            settings=settings, progress=progress)
+        for j, (d, i) in enumerate(keys):
+            for f in VERDICT_FIELDS:
+                out[f][d, i] = got[f][j]
+    out["motion"] = out["motion"].astype(str)
+    out["reason"] = out["reason"].astype(str)
+    return out

@@ -1,0 +1,219 @@
+"""`bsfs map`: a two-parameter atlas of the verified motion, with bifurcation curves."""
+
+import numpy as np
+
+from ._common import (
+    CLIError,
+    add_params_args,
+    load_params_from_args,
+    out_dir,
+    progress_enabled,
+    save_figure,
+    write_json,
+)
+
+FREQUENCY, FORCE, DAMPING_SCALE = "frequency_hz", "force_n", "damping_scale"
+DAMPERS = ("damping.bearing_n_s_per_m", "damping.screw_n_s_per_m", "damping.nut_n_s_per_m")
+_WORDS = {FREQUENCY: "Excitation frequency", FORCE: "Force amplitude",
+          DAMPING_SCALE: "Damping scale (factor on the three dampers)"}
+_SUFFIXES = ("_n_s_per_m", "_m_per_n23", "_n_per_um", "_w_per_m2k", "_w_per_k", "_mm2_s",
+             "_per_k", "_gpa", "_rpm", "_deg", "_mm", "_um", "_kg", "_hz", "_n", "_c", "_w")
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "map", help="two-parameter atlas: verified motion classes, amplitude, bifurcation "
+        "curves",
+        description="One verified cold sweep of --x per value of --y (vectorised, chunked, "
+        "checkpointed under OUT/checkpoint: a rerun with the same --out loads finished rows). "
+        "Every point is labelled period-n, quasi-periodic or chaotic only with its evidence "
+        "(orbit residual and Floquet multipliers, Lyapunov exponent with its confidence "
+        "interval), else 'unresolved' with the reason. With --x frequency_hz, each row's "
+        "periodic branch is continued by shooting and its folds, period doublings and "
+        "Neimark-Sacker points are joined across rows into curves. Writes atlas.nc "
+        "(NetCDF4, open with xarray or bsfs_jax.analysis.load_atlas), summary.json, "
+        "motion.png and amplitude.png.")
+    p.add_argument("--x", default=FREQUENCY,
+                   help="parameter swept along each row: frequency_hz (default), force_n or "
+                   "a parameter key such as nut.preload_n (file units)")
+    p.add_argument("--x-start", type=float, required=True)
+    p.add_argument("--x-stop", type=float, required=True)
+    p.add_argument("--x-num", type=int, required=True)
+    p.add_argument("--y", default=FORCE,
+                   help="parameter fixed per row: force_n (default), frequency_hz, a "
+                   "parameter key, or damping_scale (multiplies the bearing, screw and nut "
+                   "dampers of the parameter file)")
+    p.add_argument("--y-start", type=float, required=True)
+    p.add_argument("--y-stop", type=float, required=True)
+    p.add_argument("--y-num", type=int, required=True)
+    p.add_argument("--frequency", type=float, help="excitation frequency [Hz] when neither "
+                   "axis is frequency_hz")
+    p.add_argument("--force", type=float, default=5000.0,
+                   help="excitation amplitude [N] when neither axis is force_n (5000)")
+    add_params_args(p)
+    p.add_argument("--transient", type=int, default=200,
+                   help="transient periods where no linear decay rate is known (default "
+                   "200; otherwise each point runs three time constants of the slowest "
+                   "linear mode)")
+    p.add_argument("--periods", type=int, default=32, help="recorded periods (default 32)")
+    p.add_argument("--samples-per-period", type=int, default=32)
+    p.add_argument("--lyapunov", action="store_true",
+                   help="also integrate the tangent dynamics over every record (the "
+                   "verification computes its own exponent where it needs one)")
+    p.add_argument("--rtol", type=float, default=1e-8)
+    p.add_argument("--atol", type=float, default=1e-12)
+    p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--solver", default="dopri5-fused")
+    p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep")
+    p.add_argument("--chunk", type=int, default=32, help="points per checkpoint chunk")
+    p.add_argument("--shard", action="store_true", help="shard rows over all JAX devices")
+    p.add_argument("--max-period", type=int, default=16,
+                   help="largest n of period-n orbits looked for (16)")
+    p.add_argument("--max-blocks", type=int, default=8,
+                   help="continuation blocks an unresolved point may get (8)")
+    p.add_argument("--block-periods", type=int, default=256,
+                   help="forcing periods per continuation block (256)")
+    p.add_argument("--no-bifurcations", action="store_true",
+                   help="skip the continuation of each row's periodic branch")
+    p.add_argument("--ds", type=float, default=0.05,
+                   help="initial arclength step of the row continuations (0.05)")
+    p.add_argument("--max-points", type=int, default=200,
+                   help="most orbits per row continuation (200)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", required=True, help="output folder")
+    p.set_defaults(func=run)
+
+
+def _words(name: str) -> str:
+    if name in _WORDS:
+        return _WORDS[name]
+    section, _, field = name.partition(".")
+    for s in _SUFFIXES:
+        if field.endswith(s):
+            field = field[: -len(s)]
+            break
+    return f"{section.capitalize()} {field.replace('_', ' ')}".strip()
+
+
+def _check(args) -> None:
+    from ..params import lookup_key
+
+    for axis in ("x", "y"):
+        name, start, stop, num = (getattr(args, f"{axis}{s}") for s in
+                                  ("", "_start", "_stop", "_num"))
+        if num < 1:
+            raise CLIError(f"--{axis}-num must be >= 1, got {num}")
+        if not start < stop:
+            raise CLIError(f"--{axis}-start must be smaller than --{axis}-stop, got {start:g} "
+                           f"and {stop:g}")
+        if name == FREQUENCY and not start > 0:
+            raise CLIError(f"frequencies must be positive, got --{axis}-start {start:g}")
+        if name == DAMPING_SCALE and (axis == "x" or not start > 0):
+            raise CLIError("damping_scale is a --y parameter only, with positive values")
+        if name not in (FREQUENCY, FORCE, DAMPING_SCALE):
+            if lookup_key(name).kind != "float":  # unknown: ParameterError, one line
+                raise CLIError(f"'{name}' is a switch, not a scalar parameter")
+    if args.x == args.y:
+        raise CLIError(f"--x and --y are the same parameter '{args.x}'")
+    if FREQUENCY not in (args.x, args.y) and not (args.frequency or 0) > 0:
+        raise CLIError("neither axis is frequency_hz: give a positive --frequency HZ")
+    if FORCE not in (args.x, args.y) and not args.force > 0:
+        raise CLIError(f"--force must be positive, got {args.force}")
+
+
+def run(args) -> int:
+    from ..analysis import SweepConfig, atlas, bsfs_problem
+    from ..analysis._verify import VerifySettings
+    from ..params import validate
+    from ..plotting import plot_atlas_amplitude, plot_atlas_motion
+    from ..solvers import SolverSettings
+
+    _check(args)
+    params = load_params_from_args(args)
+    folder = out_dir(args.out)
+    base = {k: float(params.get(k)) for k in DAMPERS}
+
+    def row(y):
+        """(params, frequency, force) of the row at y."""
+        p, f, force = params, args.frequency, args.force
+        if args.y == FREQUENCY:
+            f = y
+        elif args.y == FORCE:
+            force = y
+        elif args.y == DAMPING_SCALE:
+            for k in DAMPERS:
+                p = p.replace(k, base[k] * y)
+        else:
+            p = p.replace(args.y, y)
+        return validate(p, source=f"--y {args.y}={y:g}"), f, force
+
+    def row_problem(y):
+        p, f, force = row(y)
+        return bsfs_problem(p, args.x, frequency_hz=f, force_n=force)
+
+    x = np.linspace(args.x_start, args.x_stop, args.x_num)
+    notes = []
+
+    def row_bifurcations(y):
+        from ..machine import bsfs_family, simulate
+        from ..solvers import Shooting, continue_orbits
+
+        p, _, force = row(y)
+        try:
+            guess = simulate(p, frequency_hz=x[0], force_n=force,
+                             transient_periods=args.transient, periods=1,
+                             samples_per_period=64).final_state
+            branch = continue_orbits(bsfs_family(p, force), guess, x[0], x[-1],
+                                     method=Shooting(), ds=args.ds,
+                                     max_points=args.max_points, amplitude_index=2)
+        except Exception as exc:  # noqa: BLE001 - a row without curves is reported
+            notes.append(f"{args.y} = {y:g}: continuation failed ({exc})")
+            print(f"bsfs map: warning: {notes[-1]}", flush=True)
+            return []
+        return [{"x": b.p, "kind": b.kind, "amplitude": b.amplitude, "located": b.located,
+                 "multiplier_moduli": np.abs(b.multipliers).tolist()}
+                for b in branch.bifurcations]
+
+    bifs = None if args.no_bifurcations or args.x != FREQUENCY or args.x_num < 2 else \
+        row_bifurcations
+    source = args.params or f"preset:{args.preset or 'default'}"
+    unit = {FREQUENCY: "Hz", FORCE: "N", DAMPING_SCALE: "1"}
+    try:
+        from ..machine import parameter_unit
+
+        config = SweepConfig(
+            transient_periods=args.transient, periods=args.periods,
+            samples_per_period=args.samples_per_period, lyapunov=args.lyapunov,
+            lyapunov_align_periods=min(16, args.transient - 1), batch_size=args.batch,
+            chunk_size=args.chunk,
+            settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
+        verify = VerifySettings(max_period=args.max_period, max_blocks=args.max_blocks,
+                                min_blocks=min(3, args.max_blocks),
+                                block_periods=args.block_periods,
+                                align_periods=min(16, args.block_periods // 4))
+        result = atlas(
+            row_problem, x, np.linspace(args.y_start, args.y_stop, args.y_num),
+            y_name=args.y, y_unit=unit.get(args.y) or parameter_unit(args.y), config=config,
+            verify=verify, checkpoint_dir=folder / "checkpoint",
+            progress=progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
+            x_label=_words(args.x), y_label=_words(args.y),
+            metadata={"parameters": source, "overrides": list(args.set), **{
+                k: v for k, v in ((FREQUENCY, args.frequency), (FORCE, args.force))
+                if k not in (args.x, args.y)}})
+    except ValueError as exc:
+        raise CLIError(str(exc).splitlines()[0]) from None
+    result.save(folder / "atlas.nc")
+    summary = result.summary()
+    summary["notes"] = notes
+    write_json(folder / "summary.json", summary)
+    fixed = ", ".join(s for s in (
+        f"{args.frequency:g} Hz" if FREQUENCY not in (args.x, args.y) else "",
+        f"{args.force:g} N" if FORCE not in (args.x, args.y) else "", source) if s)
+    save_figure(plot_atlas_motion(result, title=f"Verified motion of the nut ({fixed})"),
+                folder / "motion.png")
+    save_figure(plot_atlas_amplitude(result, title=f"Nut amplitude ({fixed})"),
+                folder / "amplitude.png")
+    counts = ", ".join(f"{n} {k}" for k, n in summary["motion_counts"].items())
+    print(f"bsfs map: {args.y_num} x {args.x_num} points ({counts}); "
+          f"{len(summary['bifurcation_curves'])} bifurcation curves -> {folder}")
+    return 0

@@ -1,0 +1,154 @@
+"""Verified motion labels on textbook systems (the same code the ball screw uses).
+
+Each label must carry its evidence: a stable orbit found by Newton from the sampled state
+(period-n), an exponent whose confidence interval excludes zero plus a broadband spectrum
+(chaos), or a zero exponent, an unlocked rotation number, a closed invariant curve and no
+stable orbit of period <= 16 (quasi-periodic).
+"""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsfs_jax.analysis import SweepConfig, SweepProblem, largest_lyapunov, sweep
+from bsfs_jax.analysis._evidence import (
+    closed_curve_error,
+    exponent_interval,
+    locked_to,
+    rotation_number,
+)
+from bsfs_jax.analysis._verify import VerifySettings, minimum_transient, verify_sweep
+from bsfs_jax.solvers import SolverSettings
+from tests.textbook import (
+    LORENZ_CLASSIC,
+    LORENZ_LYAPUNOV,
+    duffing,
+    linear_oscillator,
+    lorenz,
+    van_der_pol,
+)
+
+SETTINGS = SolverSettings(rtol=1e-9, atol=1e-11, solver="dopri5-fused")
+
+
+def _run(problem, values, transient, periods=16):
+    cfg = SweepConfig(transient_periods=transient, periods=periods, samples_per_period=16,
+                      lyapunov=False, batch_size=4, chunk_size=4, settings=SETTINGS)
+    res = sweep(problem, values, config=cfg, progress=False)
+    return res, verify_sweep(problem, res)
+
+
+def _omega_setup(data, omega):
+    return (data[0], data[1], data[2], omega), 2.0 * jnp.pi / omega
+
+
+def test_lightly_damped_oscillator_far_above_resonance_is_period_1_from_a_short_run():
+    # zeta = 0.01: the free vibration decays by only 0.3 % per forcing period at
+    # omega = 20 w0, so 10 + 16 periods leave it nearly untouched in the samples (a
+    # sample-based classifier reads a torus). The orbit engine jumps to the orbit.
+    problem = SweepProblem(linear_oscillator, _omega_setup, jnp.array([0.01, 1.0, 1.0]),
+                           jnp.zeros(2), "omega")
+    res, v = _run(problem, [20.0, 35.0], transient=10)
+    assert list(v["motion"][0]) == ["period-1", "period-1"]
+    assert v["verified"][0].all()
+    # The multiplier is the closed form exp(-zeta w0 T).
+    mu = np.exp(-0.01 * 2 * np.pi / np.array([20.0, 35.0]))
+    np.testing.assert_allclose(v["max_multiplier"][0], mu, rtol=1e-6)
+    # The amplitude is that of the orbit, not of the still-decaying samples: f0/|w0^2-w^2|.
+    amp = 1.0 / np.abs(1.0 - np.array([20.0, 35.0]) ** 2)
+    np.testing.assert_allclose(v["amplitude"][0], amp, rtol=1e-4)
+    assert np.all(v["orbit_residual"][0] < 1e-8)
+    # The record itself does not repeat: the samples alone would not give period-1.
+    from bsfs_jax.analysis import strobe_period
+
+    assert strobe_period(res.strobe[0, 0], scale=res.amplitude[0, 0]) == 0
+
+
+def _gamma_setup(data, gamma):
+    return (data[0], data[1], data[2], gamma, data[3]), 2.0 * jnp.pi / data[3]
+
+
+def test_duffing_period_doubling_route_is_verified():
+    """x'' + 0.3 x' - x + x^3 = g cos(1.2 t): period 1, 2, 4, then chaos (Guckenheimer &
+    Holmes 2.2; Thompson & Stewart)."""
+    problem = SweepProblem(duffing, _gamma_setup, jnp.array([0.3, -1.0, 1.0, 1.2]),
+                           jnp.array([1.0, 0.0]), "gamma")
+    gammas = np.array([0.20, 0.28, 0.29, 0.50])
+    n_min = minimum_transient(problem, gammas, 2 * np.pi / 1.2 * np.ones(4))
+    assert np.all(n_min == n_min[0]) and n_min[0] >= 8
+    _, v = _run(problem, gammas, transient=60)
+    assert list(v["motion"][0]) == ["period-1", "period-2", "period-4", "chaotic"]
+    assert v["verified"][0].all()
+    assert list(v["period_n"][0]) == [1, 2, 4, 0]
+    assert np.all(v["max_multiplier"][0, :3] < 1.0)
+    lo, hi = v["lyapunov_low"][0, 3], v["lyapunov_high"][0, 3]
+    assert 0.0 < lo < hi, "chaos needs a confidence interval above zero"
+    assert v["line_fraction"][0, 3] < 0.99
+
+
+def test_van_der_pol_torus_is_verified_quasi_periodic():
+    # Weakly forced van der Pol: limit cycle (omega0 ~ 1) beside the forcing at the
+    # golden-ratio frequency: an unlocked 2-torus.
+    def setup(data, omega):
+        return (data[0], data[1], omega), 2.0 * jnp.pi / omega
+
+    problem = SweepProblem(van_der_pol, setup, jnp.array([0.2, 0.1]), jnp.array([2.0, 0.0]),
+                           "omega")
+    _, v = _run(problem, [1.618], transient=100)
+    assert v["motion"][0, 0] == "quasi-periodic" and v["verified"][0, 0]
+    assert v["lyapunov_low"][0, 0] <= 0.0 <= v["lyapunov_high"][0, 0]
+    assert v["curve_error"][0, 0] < 0.05
+    # rho ~ omega0 / omega (the free frequency seen once per forcing period).
+    assert v["rotation_number"][0, 0] == pytest.approx(1.0 / 1.618, abs=0.01)
+
+
+def test_lorenz_is_verified_chaotic_through_the_same_code():
+    # Autonomous: "period" is the sampling interval (1 time unit); no orbit of period
+    # n x 1 exists, so the exponent and the spectrum decide.
+    problem = SweepProblem(lorenz, lambda data, dt: (data, dt), jnp.array(LORENZ_CLASSIC),
+                           jnp.array([1.0, 1.0, 1.0]), "interval")
+    _, v = _run(problem, [1.0], transient=20)
+    assert v["motion"][0, 0] == "chaotic" and v["verified"][0, 0]
+    assert v["lyapunov_low"][0, 0] < LORENZ_LYAPUNOV < v["lyapunov_high"][0, 0]
+
+
+def test_largest_lyapunov_drops_alignment_and_gives_an_interval():
+    res = largest_lyapunov(lorenz, jnp.array([1.0, 1.0, 1.0]), jnp.array(LORENZ_CLASSIC),
+                           interval=1.0, n_intervals=800, transient_intervals=20,
+                           align_intervals=10, settings=SolverSettings(rtol=1e-8, atol=1e-10))
+    assert res.log_growth.shape == (800,)
+    lo, hi = res.confidence_interval()
+    assert lo < LORENZ_LYAPUNOV < hi and hi - lo < 0.2
+
+
+# ---------------------------------------------------------------------------------------
+# The evidence functions on exact data
+
+
+def test_exponent_interval_covers_the_mean_of_noisy_growth():
+    rng = np.random.default_rng(0)
+    g = 0.3 + 0.5 * rng.standard_normal(4000)
+    mean, lo, hi = exponent_interval(g, 8)
+    assert lo < 0.3 < hi and mean == pytest.approx(np.mean(g))
+    assert np.isnan(exponent_interval(g[:3], 8)[0])
+
+
+def test_rotation_number_lock_and_closed_curve():
+    k = np.arange(400)
+    golden = (np.sqrt(5) - 1) / 2
+    circle = np.stack([np.cos(2 * np.pi * golden * k), 0.5 * np.sin(2 * np.pi * golden * k),
+                       0.1 * np.cos(4 * np.pi * golden * k)], axis=1)
+    # A finite section's mean turn per iterate is exact to O(1/N) (the end points).
+    assert rotation_number(circle) == pytest.approx(golden, abs=1.0 / len(k))
+    assert locked_to(golden) is None and locked_to(0.4) == (2, 5)
+    assert closed_curve_error(circle) < 0.01  # smooth: only the truncated series
+    rng = np.random.default_rng(1)
+    cloud = rng.standard_normal((400, 3))
+    assert closed_curve_error(cloud) > 0.3
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="max_period"):
+        VerifySettings(max_period=0)
+    with pytest.raises(ValueError, match="block_periods"):
+        VerifySettings(block_periods=8, segments=8)
