@@ -5,7 +5,9 @@ in the preset, excitation on the nut), each row a verified cold frequency sweep 
 100-4000 Hz, and beside every row the same grid analysed the way the paper did: a fixed
 transient of 200 forcing periods, labels read from the samples (`SweepResult.motions`).
 
-1. frequency x force, 1-20 kN (the joints unload at 2^1.5 x 1500 N = 4.2 kN);
+1. frequency x force, 1-20 kN (the joints unload at 2^1.5 x 1500 N = 4.2 kN), with the
+   branch of each row continued over 700-1700 Hz (the resonance) for the bifurcation
+   curves;
 2. frequency x damping scale 0.2-1.0 (all three dampers; physics.md's defaults = 1);
 3. frequency x nut preload 500-3000 N (paper: 1000/1500/2000 N), 5000 N.
 
@@ -30,12 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 MAPS = {
-    "force": (["--y", "force_n", "--y-start", "1000", "--y-stop", "20000", "--y-num", "6"],
+    "force": (["--y", "force_n", "--y-start", "1000", "--y-stop", "20000", "--y-num", "6",
+               "--band", "700", "1700", "--max-points", "400", "--ds", "0.1"],
               "force amplitude [N]"),
-    "damping": (["--y", "damping_scale", "--y-start", "0.2", "--y-stop", "1.0", "--y-num", "9",
-                 "--force", "5000"], "damping scale (x physics.md defaults)"),
-    "preload": (["--y", "nut.preload_n", "--y-start", "500", "--y-stop", "3000", "--y-num", "6",
-                 "--force", "5000"], "nut preload [N]"),
+    "damping": (["--y", "damping_scale", "--y-start", "0.2", "--y-stop", "1.0", "--y-num", "5",
+                 "--force", "5000", "--no-bifurcations"], "damping scale (x physics.md defaults)"),
+    "preload": (["--y", "nut.preload_n", "--y-start", "500", "--y-stop", "3000", "--y-num", "4",
+                 "--force", "5000", "--no-bifurcations"], "nut preload [N]"),
 }
 
 
@@ -80,7 +83,8 @@ def main():
             continue
         t0 = time.time()
         argv = ["map", "--x", "frequency_hz", "--x-start", "100", "--x-stop", "4000",
-                "--x-num", str(args.num), *extra, "--no-progress", "--out", str(out / name)]
+                "--x-num", str(args.num), "--periods", "16", *extra, "--no-progress",
+                "--out", str(out / name)]
         if args.no_bifurcations:
             argv.append("--no-bifurcations")
         print(f"route: {name}: bsfs {' '.join(argv)}", flush=True)

@@ -7,6 +7,7 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..solvers import RESULTS, SolverSettings, result_code
 from ._lyapunov import benettin_steps
@@ -49,6 +50,4 @@ def run_block(problem, values, y, v, *, periods: int, samples_per_period: int,
     out = _block(problem.vector_field, problem.setup, problem.data,
                  jnp.asarray(values, dtype=float), jnp.asarray(y, dtype=float),
                  jnp.asarray(v, dtype=float), int(periods), int(samples_per_period), settings)
-    import numpy as np
-
     return Block(*(np.asarray(a) for a in out))

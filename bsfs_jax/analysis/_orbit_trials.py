@@ -72,6 +72,7 @@ class OrbitTrials:
         return {"motion": f"{PERIODIC_PREFIX}{m}", "verified": True, "period_n": m,
                 "amplitude": amp, "orbit_residual": float(chk["residual"]),
                 "max_multiplier": mu, "lyapunov_per_period": float(np.log(mu) / n),
+                "lyapunov_low": float("nan"), "lyapunov_high": float("nan"),
                 "reason": (f"stable period-{m} orbit: residual {chk['residual']:.1e}, "
                            f"max |mu| {mu:.4f}; the samples approach it along its "
                            f"linearisation (deviation {dev:.1e}, misfit {misfit:.2f})")}, None

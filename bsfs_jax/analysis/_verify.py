@@ -234,6 +234,11 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
             verdict = _judge(ver, k, values[k], strobe, amp, logs, sig, periods[k],
                              last.get(k), s)
             last[k] = (strobe, amp, logs)
+            # The latest exponent estimate stays as evidence even without a verdict.
+            lam = ev.exponent_interval(logs, s.segments)
+            for f, x in zip(("lyapunov_per_period", "lyapunov_low", "lyapunov_high"), lam,
+                            strict=True):
+                out[f][k] = x
             if verdict is not None:
                 for f, x in verdict.items():
                     out[f][k] = x

@@ -78,7 +78,11 @@ def register(sub) -> None:
     p.add_argument("--ds", type=float, default=0.05,
                    help="initial arclength step of the row continuations (0.05)")
     p.add_argument("--max-points", type=int, default=200,
-                   help="most orbits per row continuation (200)")
+                   help="most orbits per row continuation (200); a row whose continuation "
+                   "stops early is named in summary.json's notes")
+    p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="continue each row's branch over this frequency band only (default: "
+                   "the whole x range)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
@@ -160,16 +164,23 @@ def run(args) -> int:
 
         p, _, force = row(y)
         try:
-            guess = simulate(p, frequency_hz=x[0], force_n=force,
+            lo, hi = (x[0], x[-1]) if args.band is None else args.band
+            guess = simulate(p, frequency_hz=lo, force_n=force,
                              transient_periods=args.transient, periods=1,
                              samples_per_period=64).final_state
-            branch = continue_orbits(bsfs_family(p, force), guess, x[0], x[-1],
+            branch = continue_orbits(bsfs_family(p, force), guess, lo, hi,
                                      method=Shooting(), ds=args.ds,
                                      max_points=args.max_points, amplitude_index=2)
         except Exception as exc:  # noqa: BLE001 - a row without curves is reported
             notes.append(f"{args.y} = {y:g}: continuation failed ({exc})")
             print(f"bsfs map: warning: {notes[-1]}", flush=True)
             return []
+        reached = float(np.max(branch.p)) if hi > lo else float(np.min(branch.p))
+        if abs(reached - hi) > 1e-6 * abs(hi - lo):
+            notes.append(f"{args.y} = {y:g}: continuation stopped at {reached:.6g} Hz "
+                         f"({branch.info.get('stop_reason')}); bifurcations beyond it are "
+                         "not shown (raise --max-points or --ds, or narrow --band)")
+            print(f"bsfs map: warning: {notes[-1]}", flush=True)
         return [{"x": b.p, "kind": b.kind, "amplitude": b.amplitude, "located": b.located,
                  "multiplier_moduli": np.abs(b.multipliers).tolist()}
                 for b in branch.bifurcations]
