@@ -64,6 +64,26 @@ def test_lightly_damped_oscillator_far_above_resonance_is_period_1_from_a_short_
     assert strobe_period(res.strobe[0, 0], scale=res.amplitude[0, 0]) == 0
 
 
+def test_a_period_1_orbit_solved_over_5_periods_is_not_period_5():
+    # Newton on Phi^{5T}(y) = y from a period-1 sample converges to the period-1 orbit; its
+    # five-period multipliers (mu^5) look like those of a stable period-5 orbit. It must
+    # not be labelled period-5 (a false label found on the ball screw and fixed).
+    from bsfs_jax.analysis._orbit_trials import OrbitTrials, scale_of
+
+    problem = SweepProblem(linear_oscillator, _omega_setup, jnp.array([0.01, 1.0, 1.0]),
+                           jnp.zeros(2), "omega")
+    res, _ = _run(problem, [20.0], transient=10)
+    strobe, amp = res.strobe[0, 0], res.amplitude[0, 0]
+    trials = OrbitTrials(problem, VerifySettings(), observe=0)
+    sc = scale_of(amp, strobe[-1])
+    (chk,) = trials.orbits([(20.0, strobe[-1], sc, 5)])
+    assert chk["converged"]
+    mu1 = np.exp(-0.01 * 2 * np.pi / 20.0)
+    assert np.max(np.abs(chk["multipliers"])) == pytest.approx(mu1 ** 5, rel=1e-6)
+    verdict, why = trials.accept(chk, 5, strobe, sc, 2 * np.pi / 20.0)
+    assert verdict is None and "repeats after 1 period" in why
+
+
 def _gamma_setup(data, gamma):
     return (data[0], data[1], data[2], gamma, data[3]), 2.0 * jnp.pi / data[3]
 

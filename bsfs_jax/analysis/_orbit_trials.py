@@ -60,7 +60,13 @@ class OrbitTrials:
         mu = float(np.max(np.abs(chk["multipliers"])))
         if not mu < 1.0:
             return None, f"the period-{n} orbit found is unstable (max |mu| = {mu:.4f})"
-        m = ev.minimal_period(chk["state"], chk["strobe"], n, scale)
+        m = ev.minimal_period(chk["state"], chk["strobe"], n, scale, tol=self.s.separation_tol)
+        if m < n:
+            # Its points repeat after m periods within the separation tolerance: a period-m
+            # orbit solved as n-periodic (its multipliers are those of period m, raised to
+            # n / m). Only an m-period trial may label it.
+            return None, (f"the period-{n} orbit found repeats after {m} period(s) (a "
+                          f"period-{m} orbit solved over {n} periods)")
         pts = np.concatenate([chk["state"][None], chk["strobe"][:m - 1]], axis=0)
         dev, misfit = ev.linear_approach(strobe, pts, chk["monodromy"], scale,
                                          self.s.near_tol)

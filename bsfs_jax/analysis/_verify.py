@@ -58,6 +58,11 @@ class VerifySettings:
       must follow the orbit's linearisation, e_{j+n} = M e_j, to a relative misfit
       below `linear_tol` (so they decay onto it: every multiplier is inside the unit
       circle). A trajectory on another attractor does not.
+    - `separation_tol`: an n-periodic orbit whose states after m | n periods lie within
+      this (scaled) of its start is a period-m orbit solved over n periods, and is not
+      counted as period-n (Newton's tolerance leaves ~1e-6 errors in the states, so
+      tighter tests miss it). Genuine period-n orbits closer to period m than this,
+      just past a period doubling, stay unresolved.
     - `candidate_tol`: loose repetition tolerance that proposes period-n candidates.
     - `decay_folds`, `min_transient_periods`: the sweep's minimum transient is
       `decay_folds` time constants of the slowest linear mode (at least
@@ -82,6 +87,7 @@ class VerifySettings:
     orbit_max_steps: int = 16
     orbit_settings: SolverSettings = CHECK_SETTINGS
     near_tol: float = 1e-4
+    separation_tol: float = 1e-3
     linear_tol: float = 0.25
     candidate_tol: float = 0.05
     decay_folds: float = 3.0
