@@ -172,3 +172,28 @@ def test_settings_are_checked():
         VerifySettings(max_period=0)
     with pytest.raises(ValueError, match="block_periods"):
         VerifySettings(block_periods=8, segments=8)
+
+
+def test_verification_resumes_from_its_checkpoint(tmp_path, monkeypatch):
+    import bsfs_jax.analysis._verify as verify_module
+
+    problem = SweepProblem(linear_oscillator, _omega_setup, jnp.array([0.01, 1.0, 1.0]),
+                           jnp.zeros(2), "omega")
+    cfg = SweepConfig(transient_periods=10, periods=16, samples_per_period=16, lyapunov=False,
+                      batch_size=4, chunk_size=4, settings=SETTINGS)
+    first = sweep(problem, [20.0, 35.0], config=cfg, verify=VerifySettings(),
+                  checkpoint_dir=tmp_path, progress=False)
+    assert list((tmp_path / "verdicts").glob("verdicts_*.npz"))
+
+    def fail(*args, **kwargs):
+        raise AssertionError("verified again instead of loading the checkpoint")
+
+    monkeypatch.setattr(verify_module, "verify_points", fail)
+    again = sweep(problem, [20.0, 35.0], config=cfg, verify=VerifySettings(),
+                  checkpoint_dir=tmp_path, progress=False)
+    for k, a in first.verdicts.items():
+        np.testing.assert_array_equal(again.verdicts[k], a)
+    # Other settings are not served from the checkpoint.
+    with pytest.raises(AssertionError, match="verified again"):
+        sweep(problem, [20.0, 35.0], config=cfg, verify=VerifySettings(near_tol=2e-4),
+              checkpoint_dir=tmp_path, progress=False)

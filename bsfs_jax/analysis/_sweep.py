@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._files import ChunkCheckpoint, jsonable, save_npz_atomic
+from .._files import ChunkCheckpoint, jsonable
 from ..solvers import result_from_codes
 from ._sweep_engines import _cold_chunk, _continued_chunk, _make_mesh, _periods
 from ._sweep_problem import DIRECTIONS, MODES, OK
@@ -160,7 +160,8 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
       `transient=None` the transient is then set per point from the slowest linear decay
       rate (`minimum_transient`) instead of `config.transient_periods`: the orbit engine
       jumps to the orbit, and points without one are continued until they stop drifting.
-      The verdicts are saved in the checkpoint folder (a rerun does not verify again).
+      The verdicts are saved in the checkpoint folder chunk by chunk (a rerun verifies
+      only the chunks not yet done).
 
     **Returns:** a `SweepResult`. Failed points (a `result` other than
     `RESULTS.successful`) hold NaN; they never stop the sweep.
@@ -323,22 +324,10 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
             np.asarray(transient)
     else:  # continued: the first point of each lane ran the cold transient
         n_tr = np.full(n, config.continued_transient_periods)
-    stored = None
-    ckpt = None if checkpoint_dir is None else Path(checkpoint_dir) / "verdicts.npz"
-    tag = json.dumps(jsonable(verify.to_dict()), sort_keys=True) + res.metadata["fingerprint"]
-    if ckpt is not None and ckpt.exists():
-        try:
-            with np.load(ckpt, allow_pickle=False) as z:
-                if str(z["tag"]) == tag:
-                    stored = {k[2:]: z[k] for k in z.files if k.startswith("v_")}
-        except (OSError, ValueError, KeyError, EOFError):
-            stored = None  # damaged: verify again
-    if stored is None:
-        stored = verify_sweep(problem, res, settings=verify, transient=n_tr,
-                              progress=progress)
-        if ckpt is not None and jax.process_index() == 0:
-            save_npz_atomic(ckpt, tag=np.array(tag),
-                            **{f"v_{k}": np.asarray(a) for k, a in stored.items()})
+    stored = verify_sweep(problem, res, settings=verify, transient=n_tr, progress=progress,
+                          checkpoint_dir=None if checkpoint_dir is None else
+                          Path(checkpoint_dir) / "verdicts",
+                          chunk=max(int(config.chunk_size), 16))
     res.verdicts = stored
     res.metadata["verify_settings"] = jsonable(verify.to_dict())
     return res

@@ -25,12 +25,15 @@ verdict or the budget (`budget_time_constants` / slowest linear decay rate).
 """
 
 import dataclasses
+import json
+from pathlib import Path
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._files import jsonable, save_npz_atomic
 from .._numerics import half_range
 from ..solvers import SolverSettings, result_codes, result_text
 from . import _evidence as ev
@@ -321,10 +324,14 @@ def _judge(ver, k, value, strobe, amp, logs, signal, period, prev, s: VerifySett
 
 
 def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings(),
-                 transient=None, progress: bool = False) -> dict:
+                 transient=None, progress: bool = False, checkpoint_dir=None,
+                 chunk: int = 64) -> dict:
     """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`) for every point of a sweep.
 
     `transient` (N,) periods integrated before the record (default the sweep's config).
+    With `checkpoint_dir`, the verdicts of each `chunk` of points are saved there as they
+    are found (tagged with the settings and the sweep's fingerprint), so an interrupted
+    verification resumes with the chunks not yet done.
     """
     D, N = result.strobe.shape[:2]
     out = _empty((D, N))
@@ -339,17 +346,46 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
             if codes[d, i] != 0:
                 out["motion"][d, i] = FAILED
                 out["reason"][d, i] = f"the sweep's integration failed: {texts[d, i]}"
-    if keys:
-        vals = np.array([result.values[i] for _, i in keys])
-        per = np.array([result.period[i] for _, i in keys])
-        got = verify_points(
-            problem, vals, np.array([result.strobe[d, i] for d, i in keys]),
-            np.array([result.amplitude[d, i] for d, i in keys]), per,
-            np.array([(n_tr[i] + P) * result.period[i] for _, i in keys]),
-            settings=settings, progress=progress)
-        for j, (d, i) in enumerate(keys):
+    tag = json.dumps([jsonable(settings.to_dict()), result.metadata.get("fingerprint"),
+                      np.asarray(n_tr).tolist()], sort_keys=True)
+    folder = None if checkpoint_dir is None else Path(checkpoint_dir)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(keys), unit="pt", disable=not progress or not keys, desc="verify")
+    for c, lo in enumerate(range(0, len(keys), int(chunk))):
+        part = keys[lo:lo + int(chunk)]
+        path = None if folder is None else folder / f"verdicts_{c:05d}.npz"
+        got = _load_chunk(path, tag)
+        if got is None:
+            vals = np.array([result.values[i] for _, i in part])
+            per = np.array([result.period[i] for _, i in part])
+            got = verify_points(
+                problem, vals, np.array([result.strobe[d, i] for d, i in part]),
+                np.array([result.amplitude[d, i] for d, i in part]), per,
+                np.array([(n_tr[i] + P) * result.period[i] for _, i in part]),
+                settings=settings)
+            got = {f: np.asarray(a).astype(str) if f in ("motion", "reason") else
+                   np.asarray(a) for f, a in got.items()}
+            if path is not None and jax.process_index() == 0:
+                save_npz_atomic(path, tag=np.array(tag), **{f"v_{k}": a for k, a in got.items()})
+        for j, (d, i) in enumerate(part):
             for f in VERDICT_FIELDS:
                 out[f][d, i] = got[f][j]
+        bar.update(len(part))
+    bar.close()
     out["motion"] = out["motion"].astype(str)
     out["reason"] = out["reason"].astype(str)
     return out
+
+
+def _load_chunk(path, tag):
+    """A saved chunk of verdicts with this tag, or None (missing, other, damaged)."""
+    if path is None or not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["tag"]) != tag:
+                return None
+            return {k[2:]: z[k] for k in z.files if k.startswith("v_")}
+    except (OSError, ValueError, KeyError, EOFError):
+        return None
