@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/bsfs identify --out out/identify
-	$(BIN)/bsfs simulate --frequency 500 --force 5000 --out out/simulate
+	$(BIN)/bsfs simulate --frequency 500 --force 5000 --verify --out out/simulate
 
 test: $(STAMP)
 	$(BIN)/python tests/run_each.py

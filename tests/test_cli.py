@@ -82,3 +82,33 @@ def test_solver_failure_is_reported_with_settings(capsys, tmp_path):
     err = capsys.readouterr().err
     assert "maximum number of solver steps" in err and "max_steps=20" in err
     assert not (tmp_path / "summary.json").exists()
+
+
+def test_version(capsys):
+    import bsfs_jax
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"bsfs {bsfs_jax.__version__}"
+
+
+def test_simulate_verify_reports_the_orbit_not_the_transient(tmp_path):
+    # 20 periods at 3500 Hz leave the first mode's free vibration dominant (the samples
+    # give ~9 um); the verified orbit's amplitude equals that of a 2 s run (0.669307 um,
+    # computed once with a 7000-period sweep), and the summary says it was verified.
+    out = tmp_path / "sim"
+    assert main(["simulate", "--frequency", "3500", "--force", "5000", "--transient", "20",
+                 "--periods", "10", "--verify", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    st = summary["steady_state"]
+    assert st["verified"] and st["motion"] == "period-1"
+    assert st["amplitude_um"] == pytest.approx(0.669307, rel=1e-4)
+    assert summary["amplitude_um"] > 2 * st["amplitude_um"]
+    assert st["evidence"]["orbit_residual"] < 1e-6 and st["evidence"]["max_multiplier"] < 1
+    # Without --verify the summary says the steady state was not checked.
+    out2 = tmp_path / "sim2"
+    assert main(["simulate", "--frequency", "3500", "--force", "5000", "--transient", "20",
+                 "--periods", "10", "--out", str(out2)]) == 0
+    st2 = json.loads((out2 / "summary.json").read_text())["steady_state"]
+    assert st2["verified"] is False and "--verify" in st2["reason"]

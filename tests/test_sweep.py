@@ -351,6 +351,11 @@ def test_cli_sweep_writes_outputs_and_resumes(tmp_path):
     summary2 = json.loads((out / "summary.json").read_text())
     assert summary2["metadata"]["chunks_computed_this_run"] == 0
     assert summary2["points"][0]["amplitude"] == p0["amplitude"]
+    # Another sweep into the same --out is refused in one line, and nothing is overwritten.
+    before = (out / "summary.json").read_bytes()
+    other = [a if a != "1500" else "1400" for a in argv]
+    assert main(other) == 1
+    assert (out / "summary.json").read_bytes() == before
 
 
 def test_jumps_are_located_at_their_folds(problem, both):

@@ -21,12 +21,19 @@ _COMMAND_MODULES = [
 ]
 
 
+#: Commands whose long runs checkpoint under --out and resume when rerun.
+_RESUMABLE = ("sweep", "map", "reproduce")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bsfs",
         description="Simulate, analyse and identify the nonlinear vibration of a ball screw "
         "feed system under thermal deformation (Yang et al. 2022 model, JAX).",
     )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"bsfs {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         try:
@@ -59,5 +66,7 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # e.g. `bsfs params | head`
         return 0
     except KeyboardInterrupt:
-        print(f"bsfs {args.command}: interrupted", file=sys.stderr)
+        resume = ("; rerun the same command with the same --out to resume from its checkpoint"
+                  if args.command in _RESUMABLE else "")
+        print(f"bsfs {args.command}: interrupted{resume}", file=sys.stderr)
         return 130

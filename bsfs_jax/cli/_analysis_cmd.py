@@ -109,12 +109,15 @@ def run(args) -> int:
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)
-    result = sweep(problem, values, mode=args.mode, direction=args.direction, config=config,
-                   transient=fixed if verify is not None else None,
-                   checkpoint_dir=folder / "checkpoint", progress=progress_enabled(args),
-                   shard=args.shard, verify=verify,
-                   metadata={"parameters": source, "overrides": list(args.set),
-                             "frequency_hz": args.frequency, "force_n": args.force})
+    try:
+        result = sweep(problem, values, mode=args.mode, direction=args.direction,
+                       config=config, transient=fixed if verify is not None else None,
+                       checkpoint_dir=folder / "checkpoint", progress=progress_enabled(args),
+                       shard=args.shard, verify=verify,
+                       metadata={"parameters": source, "overrides": list(args.set),
+                                 "frequency_hz": args.frequency, "force_n": args.force})
+    except ValueError as exc:  # e.g. the --out folder holds a different sweep
+        raise CLIError(str(exc)) from None
     jumps = result.jumps()
     if args.mode == "continued" and not args.no_folds:
         real = [j for j in jumps if j.hysteresis is not False]

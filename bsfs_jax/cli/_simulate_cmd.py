@@ -28,6 +28,10 @@ def register(sub) -> None:
     p.add_argument("--no-thermal", action="store_true", help="switch thermal deformation off")
     add_params_args(p)
     p.add_argument("--periods", type=int, default=50, help="saved steady-state periods (50)")
+    p.add_argument("--verify", action="store_true",
+                   help="verify the steady state: Newton (shooting) from the final state finds "
+                   "the periodic orbit and its Floquet multipliers, else the run is continued "
+                   "until a verified label or 'unresolved' (adds a compile of ~30 s)")
     p.add_argument("--transient", type=int, default=200, help="discarded periods (200)")
     p.add_argument("--samples-per-period", type=int, default=64, help="output points per period")
     p.add_argument("--rtol", type=float, default=1e-8)
@@ -179,13 +183,49 @@ def run_simulate(args) -> int:
                           f"{float(params.thermal.speed_rpm):g} r/min, thermal "
                           f"{'on' if params.thermal.enabled else 'off'}")
     save_figure(fig, folder / "response.png")
+    summary["steady_state"] = _steady_state(args, params, traj, amp, x, v)
     summary["runtime_s"] = time.perf_counter() - started
     write_json(folder / "summary.json", summary)
     print(f"amplitude of x_n: {amp[2] * 1e6:.3f} um (half peak-to-peak); "
           f"nut offset {summary['nut_offset_um']:.3f} um, bearing offset "
           f"{summary['bearing_offset_um']:.3f} um; {traj.num_steps} steps")
+    st = summary["steady_state"]
+    print(f"steady state: {'verified ' + st['motion'] if st['verified'] else 'NOT verified'}"
+          f" ({st['reason']})")
+    if st["verified"] and st.get("amplitude_um") is not None:
+        print(f"amplitude of x_n on the verified orbit: {st['amplitude_um']:.3f} um (the "
+              f"recorded samples give {amp[2] * 1e6:.3f} um)")
     print(f"wrote {folder}/summary.json, timeseries.csv, response.png")
     return 0
+
+
+def _steady_state(args, params, traj, amp, x, v) -> dict:
+    """Whether the recorded response is a verified steady state (`--verify`), with the
+    verifier's evidence; without `--verify` it says that it was not checked."""
+    if not args.verify:
+        return {"verified": False, "motion": "not checked",
+                "reason": f"a fixed transient of {args.transient} periods; the samples may "
+                          "still hold decaying free vibration (rerun with --verify)"}
+    from ..analysis import VerifySettings, bsfs_problem, verify_points
+
+    spp = traj.samples_per_period
+    states = np.concatenate([x, v], axis=1)[::spp]
+    period = 1.0 / args.frequency
+    problem = bsfs_problem(params, "frequency_hz", force_n=args.force)
+    got = verify_points(problem, np.array([args.frequency]), states[None],
+                        np.concatenate([amp, half_range(v, axis=0)])[None],
+                        np.array([period]),
+                        np.array([(args.transient + args.periods) * period]),
+                        settings=VerifySettings())
+    one = {k: a[0] for k, a in got.items()}
+    return {"verified": bool(one["verified"]), "motion": str(one["motion"]),
+            "reason": str(one["reason"]),
+            "amplitude_um": float(one["amplitude"] * 1e6),
+            "evidence": {"orbit_residual": float(one["orbit_residual"]),
+                         "max_multiplier": float(one["max_multiplier"]),
+                         "lyapunov_per_period": float(one["lyapunov_per_period"]),
+                         "lyapunov_per_period_95": [float(one["lyapunov_low"]),
+                                                    float(one["lyapunov_high"])]}}
 
 
 def run_params(args) -> int:
