@@ -57,6 +57,33 @@ def save_npz_atomic(path, **arrays) -> Path:
     return write_atomic(path, write)
 
 
+def save_netcdf_atomic(path, dataset) -> Path:
+    """Write an `xarray.Dataset` as NetCDF4 (engine h5netcdf), atomically."""
+    return write_atomic(path, lambda tmp: dataset.to_netcdf(tmp, engine="h5netcdf"))
+
+
+def open_netcdf(path, what: str, fmt: str):
+    """Load a NetCDF4 file written by `save_netcdf_atomic` whose `format` attribute is
+    `fmt`; one-line FileNotFoundError / ValueError naming the file and `what` it should
+    be otherwise."""
+    import xarray as xr
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such {what} file")
+    try:
+        with xr.open_dataset(path, engine="h5netcdf", decode_times=False,
+                             decode_timedelta=False) as ds:
+            ds = ds.load()
+    except Exception as exc:  # not HDF5 / NetCDF4 at all
+        raise ValueError(f"{path}: not a bsfs {what} file (not readable as NetCDF4: "
+                         f"{type(exc).__name__})") from None
+    if ds.attrs.get("format") != fmt:
+        raise ValueError(f"{path}: not a bsfs {what} file (format "
+                         f"{ds.attrs.get('format')!r}, expected {fmt!r})")
+    return ds
+
+
 def jsonable(obj, *, omit: Callable[[object], bool] | None = None):
     """`obj` with every part made JSON-encodable.
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._files import ChunkCheckpoint, jsonable, write_atomic
+from .._files import ChunkCheckpoint, jsonable, open_netcdf, save_netcdf_atomic
 from ._sweep import sweep
 from ._sweep_problem import SweepConfig
 from ._verify import UNRESOLVED, VERDICT_FIELDS, VerifySettings
@@ -185,28 +185,13 @@ class Atlas:
 
     def save(self, path) -> None:
         """Write a NetCDF4 file (engine h5netcdf), atomically (temporary file + rename)."""
-        ds = self.to_xarray()
-        write_atomic(path, lambda tmp: ds.to_netcdf(tmp, engine="h5netcdf"))
+        save_netcdf_atomic(path, self.to_xarray())
 
 
 def load_atlas(path) -> Atlas:
     """Read a file written by `Atlas.save`."""
-    import xarray as xr
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such atlas file")
-    try:
-        with xr.open_dataset(path, engine="h5netcdf", decode_times=False,
-                             decode_timedelta=False) as ds:
-            ds = ds.load()
-    except Exception as exc:  # not NetCDF4 at all
-        raise ValueError(f"{path}: not a bsfs atlas file (not readable as NetCDF4: "
-                         f"{type(exc).__name__})") from None
+    ds = open_netcdf(path, "atlas", FORMAT)
     a = ds.attrs
-    if a.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a bsfs atlas file (format {a.get('format')!r}, "
-                         f"expected {FORMAT!r})")
     verdicts = {}
     for name in json.loads(a["verdicts"]):
         v = ds[name]

@@ -3,11 +3,10 @@ detection of amplitude jumps (`Jump`, `detect_jumps`)."""
 
 import dataclasses
 import json
-from pathlib import Path
 
 import numpy as np
 
-from .._files import jsonable, write_atomic
+from .._files import jsonable, open_netcdf, save_netcdf_atomic
 from ..solvers import RESULTS, result_codes, result_from_codes, result_text
 from ._sweep_problem import OK
 
@@ -256,27 +255,12 @@ class SweepResult:
 
     def save(self, path) -> None:
         """Write a self-describing NetCDF4 file (engine h5netcdf), atomically."""
-        ds = self.to_xarray()
-        write_atomic(path, lambda tmp: ds.to_netcdf(tmp, engine="h5netcdf"))
+        save_netcdf_atomic(path, self.to_xarray())
 
 
 def load_sweep(path) -> SweepResult:
     """Read a file written by `SweepResult.save` (NetCDF4, format "bsfs-sweep-2")."""
-    import xarray as xr
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such sweep file")
-    try:
-        with xr.open_dataset(path, engine="h5netcdf", decode_times=False,
-                             decode_timedelta=False) as ds:
-            ds = ds.load()
-    except Exception as exc:  # not HDF5 / NetCDF4 at all
-        raise ValueError(f"{path}: not a bsfs sweep file (not readable as NetCDF4: "
-                         f"{type(exc).__name__})") from None
-    if ds.attrs.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a bsfs sweep file (format "
-                         f"{ds.attrs.get('format')!r}, expected {FORMAT!r})")
+    ds = open_netcdf(path, "sweep", FORMAT)
     return _from_dataset(ds)
 
 
