@@ -358,6 +358,26 @@ def test_cli_sweep_writes_outputs_and_resumes(tmp_path):
     assert (out / "summary.json").read_bytes() == before
 
 
+def test_jumps_use_the_verified_amplitude(both):
+    # Just after a jump a short continued transient still holds the old branch's motion:
+    # the record's amplitude lags by a point. The verified orbit's amplitude does not.
+    import dataclasses
+
+    c = both.observe
+    (j,) = [j for j in both.jumps() if j.direction == "up"]
+    lagging = both.amplitude.copy()
+    lagging[0, j.index_after, c] = j.amplitude_before
+    stale = dataclasses.replace(both, amplitude=lagging, verdicts=None)
+    (j_stale,) = [k for k in stale.jumps() if k.direction == "up"]
+    assert j_stale.index_before == j.index_after  # the record alone puts it one point late
+    verdicts = {"verified": np.ones(both.amplitude.shape[:2], bool),
+                "amplitude": both.amplitude[..., c]}
+    fixed = dataclasses.replace(stale, verdicts=verdicts)
+    np.testing.assert_array_equal(fixed.steady_amplitude(), both.amplitude[..., c])
+    (j_fixed,) = [k for k in fixed.jumps() if k.direction == "up"]
+    assert (j_fixed.index_before, j_fixed.index_after) == (j.index_before, j.index_after)
+
+
 def test_jumps_are_located_at_their_folds(problem, both):
     # The branch left behind by each jump ends at a fold between the two grid points;
     # continuation (shooting) from the orbit before the jump locates it.

@@ -152,11 +152,23 @@ class SweepResult:
             raise ValueError(f"direction '{direction}' not in this sweep; it has "
                              f"{list(self.directions)}") from None
 
-    def frc(self, direction: str | None = None, coordinate: int | None = None):
-        """(values, amplitude) of `coordinate` (default: the observed one) for a direction."""
-        d = 0 if direction is None else self.direction_index(direction)
+    def steady_amplitude(self, coordinate: int | None = None) -> np.ndarray:
+        """(D, N) amplitude of `coordinate` (default: the observed one): the verified
+        orbit's where the verifier found one (observed coordinate only), else the
+        record's (which may still hold a transient, e.g. just after a jump)."""
         c = self.observe if coordinate is None else coordinate
-        return self.values, self.amplitude[d, :, c]
+        amp = self.amplitude[..., c].copy()
+        v = self.verdicts
+        if c == self.observe and v is not None and "verified" in v and "amplitude" in v:
+            use = np.asarray(v["verified"], bool) & np.isfinite(v["amplitude"])
+            amp[use] = np.asarray(v["amplitude"], float)[use]
+        return amp
+
+    def frc(self, direction: str | None = None, coordinate: int | None = None):
+        """(values, amplitude) of `coordinate` (default: the observed one) for a direction
+        (`steady_amplitude`)."""
+        d = 0 if direction is None else self.direction_index(direction)
+        return self.values, self.steady_amplitude(coordinate)[d]
 
     def sweep_order(self, direction: str) -> np.ndarray:
         """Indices into `values` in the order the sweep visited them."""
@@ -164,19 +176,20 @@ class SweepResult:
         return np.arange(n)[::-1] if direction == "down" else np.arange(n)
 
     def jumps(self, coordinate: int | None = None, **kwargs) -> list[Jump]:
-        """Jumps of the amplitude along each direction, in sweep order (`detect_jumps`)."""
+        """Jumps of the amplitude (`steady_amplitude`: the verified orbits' where known)
+        along each direction, in sweep order (`detect_jumps`)."""
         out = []
+        amplitude = self.steady_amplitude(coordinate)
         for d, name in enumerate(self.directions):
             order = self.sweep_order(name)
-            c = self.observe if coordinate is None else coordinate
-            js = detect_jumps(self.values[order], self.amplitude[d, order, c],
+            js = detect_jumps(self.values[order], amplitude[d, order],
                               direction=name, **kwargs)
             for j in js:
                 j.index_before, j.index_after = int(order[j.index_before]), int(
                     order[j.index_after])
                 if len(self.directions) == 2:
-                    other = self.amplitude[1 - d, :, c]
-                    mine = self.amplitude[d, :, c]
+                    other = amplitude[1 - d]
+                    mine = amplitude[d]
                     ends = [j.index_before, j.index_after]
                     j.hysteresis = bool(np.any(
                         np.abs(other[ends] - mine[ends]) > 0.1 * np.maximum(mine[ends],

@@ -144,6 +144,6 @@ def run(args) -> int:
         fold = (f"; fold at {j['fold_value']:.6g} {result.unit}" if j.get("fold_value")
                 is not None else "")
         print(f"  {j['direction']} {j['kind']} between {j['value_before']:.6g} and "
-              f"{j['value_after']:.6g} {result.unit}: amplitude {j['amplitude_before']:.4g} -> "
-              f"{j['amplitude_after']:.4g}{fold}")
+              f"{j['value_after']:.6g} {result.unit}: amplitude of x_n "
+              f"{j['amplitude_before'] * 1e6:.4g} -> {j['amplitude_after'] * 1e6:.4g} um{fold}")
     return 0

@@ -20,8 +20,12 @@ def _display(unit: str):
     return {"m": (1e6, "um"), "m/s": (1.0, "m/s")}.get(unit, (1.0, unit))
 
 
+_PARAM_WORDS = {"frequency_hz": "Excitation frequency", "force_n": "Force amplitude"}
+
+
 def _param_label(result) -> str:
-    return f"{result.param} [{result.unit}]" if result.unit else result.param
+    name = _PARAM_WORDS.get(result.param, result.param)
+    return f"{name} [{result.unit}]" if result.unit else name
 
 
 def _state_label(result, c: int):
@@ -70,15 +74,16 @@ def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None
 
 
 def plot_frc(result, *, coordinate: int | None = None, jumps=None, title: str | None = None):
-    """Amplitude (half peak-to-peak) against the parameter for each sweep direction, with
-    the detected jumps drawn as arrows and listed in the legend."""
+    """Amplitude (half peak-to-peak; of the verified orbit where known) against the
+    parameter for each sweep direction, with the detected jumps drawn as arrows at their
+    located folds and listed in the legend."""
     c = result.observe if coordinate is None else coordinate
     factor, ylabel = _state_label(result, c)
     fig = Figure(figsize=(8, 5))
     ax = fig.add_subplot()
     for d, name in enumerate(result.directions):
         style = _DIR_STYLE.get(name, {})
-        ax.plot(result.values, result.amplitude[d, :, c] * factor, ms=3, lw=1.2,
+        ax.plot(result.values, result.steady_amplitude(c)[d] * factor, ms=3, lw=1.2,
                 label=f"{name} sweep", **style)
     jumps = result.jumps(coordinate=c) if jumps is None else jumps
     # With both directions, draw only the jumps that leave a coexisting branch.
