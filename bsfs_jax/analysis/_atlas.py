@@ -272,7 +272,7 @@ def _run_row(problem, x, config, verify, folder, shard):
     res = sweep(problem, x, config=config, verify=verify, checkpoint_dir=folder,
                 progress=False, shard=shard)
     verdicts = res.verdicts
-    return {k: np.asarray(v)[0] for k, v in verdicts.items()}
+    return {k: np.asarray(v)[0] for k, v in verdicts.items() if k in VERDICT_FIELDS}
 
 
 def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",

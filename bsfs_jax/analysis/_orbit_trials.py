@@ -75,7 +75,10 @@ class OrbitTrials:
                           f" its linearisation (misfit {misfit:.2f}, deviation {dev:.2g})")
         x = chk["samples"][:, self.obs]
         amp = float(half_range(np.append(x[np.isfinite(x)], chk["state"][self.obs])))
+        strobe_x = np.full(self.s.max_period, np.nan)
+        strobe_x[:m] = pts[:, self.obs]
         return {"motion": f"{PERIODIC_PREFIX}{m}", "verified": True, "period_n": m,
+                "orbit_strobe": strobe_x,
                 "amplitude": amp, "orbit_residual": float(chk["residual"]),
                 "max_multiplier": mu, "lyapunov_per_period": float(np.log(mu) / n),
                 "lyapunov_low": float("nan"), "lyapunov_high": float("nan"),

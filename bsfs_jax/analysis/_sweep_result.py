@@ -329,15 +329,19 @@ def _to_dataset(res: SweepResult):
     shape = (len(res.directions), np.size(res.values))
     for name, value in (res.verdicts or {}).items():
         a = np.asarray(value)
-        if a.shape != shape or a.dtype.kind not in "biufUSO":
+        if a.shape[:2] != shape or a.dtype.kind not in "biufUSO" or (
+                a.ndim > 2 and a.dtype.kind not in "biuf"):
             raise ValueError(f"verdict '{name}' must be a {shape} array of floats, ints, bools "
-                             f"or strings, got shape {a.shape} dtype {a.dtype}")
+                             f"or strings (numbers may have further axes), got shape "
+                             f"{a.shape} dtype {a.dtype}")
         key = "verdict_" + _file_name(name)
         if key in data:
             raise ValueError(f"verdict '{name}' clashes with another verdict in the file")
         if a.dtype.kind in "USO":
             a = np.array([str(x) for x in a.ravel()], dtype=object).reshape(shape)
-        data[key] = (_D2, a, {"long_name": f"verdict {name}", "verdict_name": str(name)})
+        extra = tuple(f"{key}_axis{k}" for k in range(a.ndim - 2))
+        data[key] = (_D2 + extra, a, {"long_name": f"verdict {name}",
+                                      "verdict_name": str(name)})
     pname = _file_name(res.param)
     pname = "values" if pname in _RESERVED or pname.startswith("verdict_") else pname
     coords = {

@@ -170,8 +170,14 @@ def minimum_transient(problem, values, periods, settings: VerifySettings = Verif
     return np.maximum(n, settings.min_transient_periods).astype(int)
 
 
-def _empty(shape):
+#: Beside the (D, N) fields: the verified orbit's observed coordinate at t = k T,
+#: k = 0..n-1 (NaN beyond n and where no orbit was verified), shape (D, N, max_period).
+ORBIT_STROBE = "orbit_strobe"
+
+
+def _empty(shape, max_period: int):
     out = {name: np.full(shape, np.nan) for name in VERDICT_FIELDS}
+    out[ORBIT_STROBE] = np.full(tuple(shape) + (int(max_period),), np.nan)
     out["motion"] = np.full(shape, UNRESOLVED, dtype=object)
     out["reason"] = np.full(shape, "", dtype=object)
     out["verified"] = np.zeros(shape, dtype=bool)
@@ -186,7 +192,7 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
     already integrated. Returns a dict of (K,) verdict arrays (`VERDICT_FIELDS`)."""
     s = settings
     K = len(values)
-    out = _empty((K,))
+    out = _empty((K,), s.max_period)
     obs = problem.observe
     ver = OrbitTrials(problem, s, obs)
     entries = [(k, values[k], strobes[k], amplitudes[k], periods[k], ()) for k in range(K)]
@@ -326,7 +332,8 @@ def _judge(ver, k, value, strobe, amp, logs, signal, period, prev, s: VerifySett
 def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings(),
                  transient=None, progress: bool = False, checkpoint_dir=None,
                  chunk: int = 64) -> dict:
-    """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`) for every point of a sweep.
+    """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`, and the (D, N, max_period)
+    `orbit_strobe`) for every point of a sweep.
 
     `transient` (N,) periods integrated before the record (default the sweep's config).
     With `checkpoint_dir`, the verdicts of each `chunk` of points are saved there as they
@@ -334,7 +341,7 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
     verification resumes with the chunks not yet done.
     """
     D, N = result.strobe.shape[:2]
-    out = _empty((D, N))
+    out = _empty((D, N), settings.max_period)
     codes = result_codes(result.result)
     texts = result_text(result.result)
     n_tr = (np.full(N, result.config.get("transient_periods", 0)) if transient is None
@@ -369,8 +376,9 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
             if path is not None and jax.process_index() == 0:
                 save_npz_atomic(path, tag=np.array(tag), **{f"v_{k}": a for k, a in got.items()})
         for j, (d, i) in enumerate(part):
-            for f in VERDICT_FIELDS:
-                out[f][d, i] = got[f][j]
+            for f in (*VERDICT_FIELDS, ORBIT_STROBE):
+                if f in got:  # (chunks saved before orbit_strobe existed lack it)
+                    out[f][d, i] = got[f][j]
         bar.update(len(part))
     bar.close()
     out["motion"] = out["motion"].astype(str)

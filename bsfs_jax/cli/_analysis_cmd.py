@@ -128,8 +128,10 @@ def run(args) -> int:
     force = f"{args.force:g} N" if args.param != "force_n" else "swept force"
     where = f", {args.frequency:g} Hz" if args.param != "frequency_hz" else ""
     tag = f"({force}{where}, {source})"
+    swept = {"frequency_hz": "excitation frequency", "force_n": "force amplitude"}.get(
+        args.param, args.param)
     save_figure(plot_bifurcation(result, title=f"Bifurcation diagram of the nut displacement "
-                                 f"vs {args.param} {tag}"), folder / "bifurcation.png")
+                                 f"vs {swept} {tag}"), folder / "bifurcation.png")
     save_figure(plot_frc(result, jumps=jumps), folder / "frc.png")
     save_figure(plot_waterfall(result), folder / "waterfall.png")
     failed = summary["failed_points"]

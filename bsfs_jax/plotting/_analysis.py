@@ -39,23 +39,35 @@ def _state_label(result, c: int):
 def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None = None):
     """Stroboscopic samples of one state against the swept parameter, per direction.
 
-    Failed points are marked with a red x on the axis.
+    Verified periodic points show their orbit's n stroboscopic points; other verified
+    points their recorded samples; unresolved points are grey; failed points are marked
+    with a red x on the axis.
     """
     c = result.observe if coordinate is None else coordinate
     factor, ylabel = _state_label(result, c)
     fig = Figure(figsize=(8, 5))
     ax = fig.add_subplot()
     verdicts = getattr(result, "verdicts", None)
+    orbit = None if verdicts is None or c != result.observe else verdicts.get("orbit_strobe")
     for d, name in enumerate(result.directions):
         s = result.strobe[d, :, :, c] * factor
         x = np.broadcast_to(result.values[:, None], s.shape)
         style = _DIR_STYLE.get(name, {})
+        color = style.get("color", "k")
         ok = np.ones(result.values.size, bool) if verdicts is None else \
             np.asarray(verdicts["verified"][d], bool)
-        ax.plot(x[ok].ravel(), s[ok].ravel(), ".", ms=2.5, color=style.get("color", "k"),
-                alpha=0.6)
+        on_orbit = np.zeros_like(ok) if orbit is None else \
+            ok & np.any(np.isfinite(orbit[d]), axis=-1)
+        if on_orbit.any():
+            # Verified periodic points: the orbit's own stroboscopic points (n of them),
+            # not the record, which may still hold a decaying transient.
+            o = orbit[d][on_orbit] * factor
+            ox = np.broadcast_to(result.values[on_orbit][:, None], o.shape)
+            ax.plot(ox.ravel(), o.ravel(), "o", ms=3.5, color=color, alpha=0.8)
+        rest = ok & ~on_orbit
+        ax.plot(x[rest].ravel(), s[rest].ravel(), ".", ms=2.5, color=color, alpha=0.6)
         what = "verified labels" if verdicts is not None else "labels not verified"
-        ax.plot([], [], "o", ms=3, color=style.get("color", "k"), label=f"{name} sweep ({what})")
+        ax.plot([], [], "o", ms=3, color=color, label=f"{name} sweep ({what})")
         if verdicts is not None and (~ok).any():
             ax.plot(x[~ok].ravel(), s[~ok].ravel(), ".", ms=2.5, color="0.6", alpha=0.6)
             ax.plot([], [], "o", ms=3, color="0.6",
