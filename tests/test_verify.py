@@ -100,6 +100,12 @@ def test_duffing_period_doubling_route_is_verified():
     assert list(v["motion"][0]) == ["period-1", "period-2", "period-4", "chaotic"]
     assert v["verified"][0].all()
     assert list(v["period_n"][0]) == [1, 2, 4, 0]
+    # The orbit's own stroboscopic points: n distinct values, NaN beyond; none for chaos.
+    strobe = v["orbit_strobe"][0]
+    for i, n in enumerate([1, 2, 4]):
+        pts = strobe[i][np.isfinite(strobe[i])]
+        assert pts.size == n and np.unique(np.round(pts, 6)).size == n
+    assert np.all(np.isnan(strobe[3]))
     assert np.all(v["max_multiplier"][0, :3] < 1.0)
     lo, hi = v["lyapunov_low"][0, 3], v["lyapunov_high"][0, 3]
     assert 0.0 < lo < hi, "chaos needs a confidence interval above zero"
