@@ -112,3 +112,53 @@ def test_simulate_verify_reports_the_orbit_not_the_transient(tmp_path):
                  "--periods", "10", "--out", str(out2)]) == 0
     st2 = json.loads((out2 / "summary.json").read_text())["steady_state"]
     assert st2["verified"] is False and "--verify" in st2["reason"]
+
+
+def _cases(tmp_path):
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\xff\xfe\x00\x81 not text")
+    empty = tmp_path / "empty.toml"
+    empty.write_text("# nothing set\n")
+    a_file = tmp_path / "a_file"
+    a_file.write_text("user data\n")
+    sim = ["simulate", "--frequency", "500", "--force", "100"]
+    return {
+        # name: (argv, exit status, text the one line must hold)
+        "nan force": (sim[:-1] + ["nan", "--out", str(tmp_path / "o1")], 2,
+                      "must be a finite number"),
+        "inf frequency": (["simulate", "--frequency", "inf", "--force", "1", "--out",
+                           str(tmp_path / "o2")], 2, "must be a finite number"),
+        "unknown solver": (sim + ["--solver", "rk99", "--out", str(tmp_path / "o3")], 2,
+                           "invalid choice: 'rk99'"),
+        "binary parameter file": (["modes", "--params", str(binary)], 1, "not a text (UTF-8)"),
+        "empty parameter file": (["modes", "--params", str(empty)], 1, "sets no parameters"),
+        "output under a file": (sim + ["--out", str(a_file / "sub")], 1,
+                                "is a file, not a folder"),
+    }
+
+
+@pytest.mark.parametrize("name", ["nan force", "inf frequency", "unknown solver",
+                                  "binary parameter file", "empty parameter file",
+                                  "output under a file"])
+def test_named_bad_inputs_end_in_one_line(capsys, tmp_path, name):
+    argv, status, text = _cases(tmp_path)[name]
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse's own errors: usage line + one error line
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc == status, err
+    assert text in err and "Traceback" not in err
+    assert len([line for line in err.splitlines() if "error" in line]) == 1
+    assert (tmp_path / "a_file").read_text() == "user data\n"  # never overwritten
+
+
+def test_no_progress_is_accepted_by_every_long_command():
+    from bsfs_jax.cli import build_parser
+
+    parser = build_parser()
+    for argv in (["sensitivity", "--metric", "amplitude", "--out", "x"],
+                 ["optimize", "--metric", "amplitude", "--vary", "nut.preload_n", "--out", "x"],
+                 ["identify", "--out", "x"], ["simulate", "--frequency", "1", "--force", "1",
+                                              "--out", "x"]):
+        assert parser.parse_args([*argv, "--no-progress"]).no_progress

@@ -5,6 +5,7 @@ import numpy as np
 from ._common import (
     CLIError,
     add_params_args,
+    finite_float,
     load_params_from_args,
     out_dir,
     progress_enabled,
@@ -29,11 +30,11 @@ def register(sub) -> None:
     p.add_argument("--param", default="frequency_hz",
                    help="'frequency_hz', 'force_n' or a parameter key such as nut.balls, "
                    "bearing.contact_angle_deg, nut.preload_n (file units)")
-    p.add_argument("--start", type=float, required=True, help="first value")
-    p.add_argument("--stop", type=float, required=True, help="last value")
+    p.add_argument("--start", type=finite_float, required=True, help="first value")
+    p.add_argument("--stop", type=finite_float, required=True, help="last value")
     p.add_argument("--num", type=int, required=True, help="number of values (evenly spaced)")
-    p.add_argument("--frequency", type=float, help="excitation frequency [Hz] (fixed)")
-    p.add_argument("--force", type=float, default=5000.0,
+    p.add_argument("--frequency", type=finite_float, help="excitation frequency [Hz] (fixed)")
+    p.add_argument("--force", type=finite_float, default=5000.0,
                    help="excitation amplitude [N] on the nut (default 5000)")
     p.add_argument("--mode", choices=("cold", "continued"), default="cold")
     p.add_argument("--direction", choices=("up", "down", "both"), default="up",
@@ -58,10 +59,11 @@ def register(sub) -> None:
                    help="also integrate the tangent dynamics over every recorded record "
                    "(the verifier computes exponents with confidence intervals where it "
                    "needs them anyway)")
-    p.add_argument("--rtol", type=float, default=1e-8)
-    p.add_argument("--atol", type=float, default=1e-12)
+    p.add_argument("--rtol", type=finite_float, default=1e-8)
+    p.add_argument("--atol", type=finite_float, default=1e-12)
     p.add_argument("--max-steps", type=int, default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
+                   choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"),
                    help="integrator: dopri5-fused (default, fast forward-only loop) or a "
                    "diffrax solver: tsit5, dopri5, dopri8, kvaerno5")
     p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep (vmap)")

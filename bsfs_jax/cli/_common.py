@@ -70,8 +70,31 @@ def out_dir(path) -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise CLIError(f"--out '{path}' exists and is not a folder")
-    path.mkdir(parents=True, exist_ok=True)
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise CLIError(f"--out '{path}': '{parent}' is a file, not a folder; choose "
+                               "another --out")
+            break
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CLIError(f"--out '{path}': cannot create the folder ({exc.strerror})") from None
     return path
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (nan and inf are refused in one line)."""
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got '{text}'")
+    return value
 
 
 def write_json(path, data) -> None:

@@ -8,6 +8,7 @@ import numpy as np
 from ._common import (
     CLIError,
     add_params_args,
+    finite_float,
     load_params_from_args,
     out_dir,
     progress_enabled,
@@ -27,10 +28,11 @@ def register(sub) -> None:
         "with harmonic balance or shooting. Folds are cross-checked with the other method. "
         "Writes frc.png (stable solid, unstable dashed, bifurcations marked), branch.csv, "
         "bifurcations.json and summary.json.")
-    p.add_argument("--start", type=float, required=True, metavar="HZ",
+    p.add_argument("--start", type=finite_float, required=True, metavar="HZ",
                    help="start frequency [Hz] (a transient simulation there gives the guess)")
-    p.add_argument("--stop", type=float, required=True, metavar="HZ", help="stop frequency [Hz]")
-    p.add_argument("--force", type=float, default=3000.0, metavar="N",
+    p.add_argument("--stop", type=finite_float, required=True, metavar="HZ",
+                   help="stop frequency [Hz]")
+    p.add_argument("--force", type=finite_float, default=3000.0, metavar="N",
                    help="force amplitude on the nut [N] (3000)")
     add_params_args(p)
     p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
@@ -39,23 +41,25 @@ def register(sub) -> None:
     p.add_argument("--harmonics", type=int, default=8,
                    help="starting harmonic count for hb; doubled where the error estimate "
                    "exceeds --hb-tol (8)")
-    p.add_argument("--hb-tol", type=float, default=1e-5,
+    p.add_argument("--hb-tol", type=finite_float, default=1e-5,
                    help="hb error tolerance: estimated state error relative to the orbit "
                    "size (1e-5)")
     p.add_argument("--no-cross-check", action="store_true",
                    help="skip the cross-check of the folds with the other method")
-    p.add_argument("--ds", type=float, default=0.1,
+    p.add_argument("--ds", type=finite_float, default=0.1,
                    help="initial arclength step in scaled units (0.1; adapted)")
-    p.add_argument("--ds-max", type=float, default=None, help="largest step (10 ds)")
+    p.add_argument("--ds-max", type=finite_float, default=None, help="largest step (10 ds)")
     p.add_argument("--max-points", type=int, default=400, help="most branch points (400)")
     p.add_argument("--dof", choices=sorted(_DOFS), default="nut",
                    help="mass whose amplitude is plotted and tabulated (nut)")
     p.add_argument("--transient-periods", type=int, default=150,
                    help="periods simulated from rest at --start for the first guess (150)")
-    p.add_argument("--rtol", type=float, default=1e-11, help="ODE rtol (1e-11)")
-    p.add_argument("--atol", type=float, default=1e-13,
+    p.add_argument("--rtol", type=finite_float, default=1e-11, help="ODE rtol (1e-11)")
+    p.add_argument("--atol", type=finite_float, default=1e-13,
                    help="ODE atol, on states scaled to order one (1e-13)")
-    p.add_argument("--solver", default="dopri8", help="ODE solver (dopri8)")
+    p.add_argument("--solver", default="dopri8",
+                   choices=("dopri8", "dopri5", "tsit5", "kvaerno5"),
+                   help="ODE solver (dopri8)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_continue)

@@ -5,6 +5,7 @@ import time
 from ._common import (
     CLIError,
     add_params_args,
+    finite_float,
     load_params_from_args,
     out_dir,
     save_figure,
@@ -32,6 +33,8 @@ def register(sub) -> None:
     p.add_argument("--check-fd", action="store_true",
                    help="also compute central finite differences and report the agreement")
     add_params_args(p)
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_sensitivity)
 
@@ -49,20 +52,22 @@ def register(sub) -> None:
     q.add_argument("--bounds", metavar="NAME=LO:HI,...",
                    help="bounds in file units, e.g. nut.balls=40:60,nut.preload_n=1000:2000 "
                    "(default +-30 %% of the start value)")
-    q.add_argument("--min-stiffness", type=float, metavar="N_PER_UM",
+    q.add_argument("--min-stiffness", type=finite_float, metavar="N_PER_UM",
                    help="require a static axial stiffness of at least this [N/um]")
     q.add_argument("--max-steps", type=int, default=60, help="BFGS steps per penalty round")
     q.add_argument("--no-verify", action="store_true", help="skip the simulation check")
     _operating_args(q, DEFAULT_FREQUENCY_HZ, DEFAULT_FORCE_N)
     add_params_args(q)
+    q.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (they show only on a terminal anyway)")
     q.add_argument("--out", required=True, metavar="DIR", help="output folder")
     q.set_defaults(func=run_optimize)
 
 
 def _operating_args(p, f0, p0):
-    p.add_argument("--frequency", type=float, metavar="HZ",
+    p.add_argument("--frequency", type=finite_float, metavar="HZ",
                    help=f"operating frequency for orbit metrics [Hz] (default {f0:g})")
-    p.add_argument("--force", type=float, metavar="N",
+    p.add_argument("--force", type=finite_float, metavar="N",
                    help=f"force amplitude on the nut for orbit metrics [N] (default {p0:g})")
 
 

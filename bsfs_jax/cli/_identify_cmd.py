@@ -7,6 +7,7 @@ from pathlib import Path
 from ._common import (
     CLIError,
     add_params_args,
+    finite_float,
     load_params_from_args,
     out_dir,
     save_figure,
@@ -34,6 +35,8 @@ def register(sub) -> None:
     p.add_argument("--starts", type=int, default=3, help="multi-start count (3)")
     p.add_argument("--max-steps", type=int, default=60, help="LM iterations per start (60)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_identify)
 
@@ -42,13 +45,15 @@ def register(sub) -> None:
                        "force (distortion, drift, anti-alias filter, offsets, noise) and write "
                        "a record CSV that `bsfs identify` reads.")
     add_params_args(s)
-    s.add_argument("--frequency", type=float, required=True, metavar="HZ")
-    s.add_argument("--force", type=float, required=True, metavar="N")
-    s.add_argument("--speed", type=float, metavar="RPM", help="spindle speed (thermal chain)")
-    s.add_argument("--noise-db", type=float, default=35.0, metavar="DB",
+    s.add_argument("--frequency", type=finite_float, required=True, metavar="HZ")
+    s.add_argument("--force", type=finite_float, required=True, metavar="N")
+    s.add_argument("--speed", type=finite_float, metavar="RPM",
+                   help="spindle speed (thermal chain)")
+    s.add_argument("--noise-db", type=finite_float, default=35.0, metavar="DB",
                    help="accelerometer SNR in dB (35); the force sensor gets +5 dB")
-    s.add_argument("--duration", type=float, default=2.0, metavar="S", help="record length (2)")
-    s.add_argument("--sample-rate", type=float, default=10240.0, metavar="HZ")
+    s.add_argument("--duration", type=finite_float, default=2.0, metavar="S",
+                   help="record length (2)")
+    s.add_argument("--sample-rate", type=finite_float, default=10240.0, metavar="HZ")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, metavar="FILE.csv")
     s.set_defaults(func=run_synth)
@@ -58,7 +63,7 @@ def register(sub) -> None:
                        "for candidate test plans and recommend one.")
     add_params_args(t)
     t.add_argument("--fit", metavar="NAME,...", default=None)
-    t.add_argument("--noise-db", type=float, default=35.0, metavar="DB",
+    t.add_argument("--noise-db", type=finite_float, default=35.0, metavar="DB",
                    help="accelerometer SNR (35 dB); force sensor +5 dB")
     t.add_argument("--out", required=True, metavar="DIR")
     t.set_defaults(func=run_plan)

@@ -5,6 +5,7 @@ import numpy as np
 from ._common import (
     CLIError,
     add_params_args,
+    finite_float,
     load_params_from_args,
     out_dir,
     progress_enabled,
@@ -36,19 +37,19 @@ def register(sub) -> None:
     p.add_argument("--x", default=FREQUENCY,
                    help="parameter swept along each row: frequency_hz (default), force_n or "
                    "a parameter key such as nut.preload_n (file units)")
-    p.add_argument("--x-start", type=float, required=True)
-    p.add_argument("--x-stop", type=float, required=True)
+    p.add_argument("--x-start", type=finite_float, required=True)
+    p.add_argument("--x-stop", type=finite_float, required=True)
     p.add_argument("--x-num", type=int, required=True)
     p.add_argument("--y", default=FORCE,
                    help="parameter fixed per row: force_n (default), frequency_hz, a "
                    "parameter key, or damping_scale (multiplies the bearing, screw and nut "
                    "dampers of the parameter file)")
-    p.add_argument("--y-start", type=float, required=True)
-    p.add_argument("--y-stop", type=float, required=True)
+    p.add_argument("--y-start", type=finite_float, required=True)
+    p.add_argument("--y-stop", type=finite_float, required=True)
     p.add_argument("--y-num", type=int, required=True)
-    p.add_argument("--frequency", type=float, help="excitation frequency [Hz] when neither "
+    p.add_argument("--frequency", type=finite_float, help="excitation frequency [Hz] when neither "
                    "axis is frequency_hz")
-    p.add_argument("--force", type=float, default=5000.0,
+    p.add_argument("--force", type=finite_float, default=5000.0,
                    help="excitation amplitude [N] when neither axis is force_n (5000)")
     add_params_args(p)
     p.add_argument("--transient", type=int, default=200,
@@ -60,10 +61,11 @@ def register(sub) -> None:
     p.add_argument("--lyapunov", action="store_true",
                    help="also integrate the tangent dynamics over every record (the "
                    "verification computes its own exponent where it needs one)")
-    p.add_argument("--rtol", type=float, default=1e-8)
-    p.add_argument("--atol", type=float, default=1e-12)
+    p.add_argument("--rtol", type=finite_float, default=1e-8)
+    p.add_argument("--atol", type=finite_float, default=1e-12)
     p.add_argument("--max-steps", type=int, default=4_000_000)
-    p.add_argument("--solver", default="dopri5-fused")
+    p.add_argument("--solver", default="dopri5-fused",
+                   choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"))
     p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep")
     p.add_argument("--chunk", type=int, default=32, help="points per checkpoint chunk")
     p.add_argument("--shard", action="store_true", help="shard rows over all JAX devices")
@@ -75,12 +77,12 @@ def register(sub) -> None:
                    help="forcing periods per continuation block (256)")
     p.add_argument("--no-bifurcations", action="store_true",
                    help="skip the continuation of each row's periodic branch")
-    p.add_argument("--ds", type=float, default=0.05,
+    p.add_argument("--ds", type=finite_float, default=0.05,
                    help="initial arclength step of the row continuations (0.05)")
     p.add_argument("--max-points", type=int, default=200,
                    help="most orbits per row continuation (200); a row whose continuation "
                    "stops early is named in summary.json's notes")
-    p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+    p.add_argument("--band", type=finite_float, nargs=2, metavar=("LO", "HI"),
                    help="continue each row's branch over this frequency band only (default: "
                    "the whole x range)")
     p.add_argument("--no-progress", action="store_true")

@@ -2,7 +2,7 @@
 
 import time
 
-from ._common import CLIError, out_dir
+from ._common import CLIError, finite_float, out_dir
 
 
 def register(sub) -> None:
@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--preset", default="paper-tuned", metavar="NAME",
                    help="parameter preset (default: paper-tuned; 'default' for physics.md's "
                    "values)")
-    p.add_argument("--thermal-frequency", type=float, metavar="HZ",
+    p.add_argument("--thermal-frequency", type=finite_float, metavar="HZ",
                    help="excitation frequency of Figs. 13-17 [Hz] (default 500)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run_reproduce)

@@ -1,7 +1,6 @@
 """`bsfs simulate`, `bsfs params` and `bsfs modes`."""
 
 import functools
-import sys
 import time
 
 import numpy as np
@@ -10,8 +9,10 @@ from .._numerics import half_range
 from ._common import (
     CLIError,
     add_params_args,
+    finite_float,
     load_params_from_args,
     out_dir,
+    progress_enabled,
     save_figure,
     write_json,
 )
@@ -21,10 +22,12 @@ def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate the response to a harmonic force on the nut",
                        description="Simulate Eq. 31 under P sin(2 pi f t) on the nut; write "
                        "summary.json, timeseries.csv and response.png.")
-    p.add_argument("--frequency", type=float, required=True, metavar="HZ",
+    p.add_argument("--frequency", type=finite_float, required=True, metavar="HZ",
                    help="excitation frequency [Hz]")
-    p.add_argument("--force", type=float, required=True, metavar="N", help="force amplitude [N]")
-    p.add_argument("--speed", type=float, metavar="RPM", help="screw speed [r/min] (thermal chain)")
+    p.add_argument("--force", type=finite_float, required=True, metavar="N",
+                   help="force amplitude [N]")
+    p.add_argument("--speed", type=finite_float, metavar="RPM",
+                   help="screw speed [r/min] (thermal chain)")
     p.add_argument("--no-thermal", action="store_true", help="switch thermal deformation off")
     add_params_args(p)
     p.add_argument("--periods", type=int, default=50, help="saved steady-state periods (50)")
@@ -34,12 +37,15 @@ def register(sub) -> None:
                    "until a verified label or 'unresolved' (adds a compile of ~30 s)")
     p.add_argument("--transient", type=int, default=200, help="discarded periods (200)")
     p.add_argument("--samples-per-period", type=int, default=64, help="output points per period")
-    p.add_argument("--rtol", type=float, default=1e-8)
-    p.add_argument("--atol", type=float, default=1e-12, help="absolute tolerance [SI]")
+    p.add_argument("--rtol", type=finite_float, default=1e-8)
+    p.add_argument("--atol", type=finite_float, default=1e-12, help="absolute tolerance [SI]")
     p.add_argument("--max-steps", type=int, default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
+                   choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"),
                    help="dopri5-fused (default: fast forward-only loop) or a diffrax solver: "
                    "tsit5, dopri5, dopri8, kvaerno5")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_simulate)
 
@@ -50,9 +56,9 @@ def register(sub) -> None:
 
     m = sub.add_parser("modes", help="natural frequencies and mode shapes about equilibrium")
     add_params_args(m)
-    m.add_argument("--speed", type=float, metavar="RPM")
+    m.add_argument("--speed", type=finite_float, metavar="RPM")
     m.add_argument("--no-thermal", action="store_true")
-    m.add_argument("--static-force", type=float, default=0.0, metavar="N",
+    m.add_argument("--static-force", type=finite_float, default=0.0, metavar="N",
                    help="constant axial force on the nut for the equilibrium [N]")
     m.add_argument("--json", action="store_true", help="print JSON instead of a table")
     m.set_defaults(func=run_modes)
@@ -122,7 +128,7 @@ def run_simulate(args) -> int:
                     periods=args.periods, transient_periods=args.transient,
                     samples_per_period=args.samples_per_period, rtol=args.rtol, atol=args.atol,
                     max_steps=args.max_steps, solver=args.solver,
-                    progress=sys.stderr.isatty() and args.solver != "dopri5-fused")
+                    progress=progress_enabled(args) and args.solver != "dopri5-fused")
     t = np.asarray(traj.t)
     x = np.asarray(traj.displacement)
     v = np.asarray(traj.velocity)

@@ -23,13 +23,19 @@ def load_params(path, *, overrides: dict | None = None) -> BallScrewParams:
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ParameterError(f"{path}: not a text (UTF-8) file; a parameter file is TOML "
+                             "text (`bsfs params > file.toml` writes a complete one)") from None
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file '{path}': {exc.strerror}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(f"{path}: not valid TOML: {exc}") from None
+    if not data:
+        raise ParameterError(f"{path}: the file sets no parameters (empty); write the keys to "
+                             "change, or name a preset with --preset (`bsfs params --list`)")
     return _from_partial(data, source=str(path), overrides=overrides)
 
 
