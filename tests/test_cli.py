@@ -134,12 +134,16 @@ def _cases(tmp_path):
         "empty parameter file": (["modes", "--params", str(empty)], 1, "sets no parameters"),
         "output under a file": (sim + ["--out", str(a_file / "sub")], 1,
                                 "is a file, not a folder"),
+        "sweep range through zero balls": (
+            ["sweep", "--param", "nut.balls", "--start", "0", "--stop", "40", "--num", "5",
+             "--frequency", "1000", "--out", str(tmp_path / "o4")], 1,
+            "'nut.balls' = 0 is outside the allowed range"),
     }
 
 
 @pytest.mark.parametrize("name", ["nan force", "inf frequency", "unknown solver",
                                   "binary parameter file", "empty parameter file",
-                                  "output under a file"])
+                                  "output under a file", "sweep range through zero balls"])
 def test_named_bad_inputs_end_in_one_line(capsys, tmp_path, name):
     argv, status, text = _cases(tmp_path)[name]
     try:
@@ -162,3 +166,20 @@ def test_no_progress_is_accepted_by_every_long_command():
                  ["identify", "--out", "x"], ["simulate", "--frequency", "1", "--force", "1",
                                               "--out", "x"]):
         assert parser.parse_args([*argv, "--no-progress"]).no_progress
+
+
+def test_implausible_values_warn_in_one_line_and_still_run(capsys):
+    assert main(["modes", "--set", "nut.preload_n=1e30"]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "warning" in line]
+    assert len(lines) == 1 and "'nut.preload_n' = 1e+30" in lines[0]
+    assert "plausible range [10, 50000]" in lines[0] and "Traceback" not in err
+    # The bundled presets are all plausible.
+    import warnings
+
+    from bsfs_jax.params import list_presets, preset, validate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in list_presets():
+            validate(preset(name), source=name)

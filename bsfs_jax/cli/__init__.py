@@ -46,6 +46,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warnings(command) -> None:
+    """Our warnings (implausible values, ...) as one line each, once per message."""
+    import warnings
+
+    from ..params import ParameterWarning
+
+    shown = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, ParameterWarning) or category is UserWarning:
+            text = str(message)
+            what = text.split(": ", 1)[-1]  # the same value checked twice, from two sources
+            if what not in shown:
+                shown.add(what)
+                print(f"bsfs {command}: warning: {text}", file=sys.stderr)
+        else:
+            warnings._showwarning_orig(message, category, filename, lineno, file, line)
+
+    warnings._showwarning_orig = getattr(warnings, "_showwarning_orig", warnings.showwarning)
+    warnings.showwarning = show
+
+
 def main(argv=None) -> int:
     from ._common import CLIError, setup_jax
 
@@ -55,6 +77,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     setup_jax()
+    _one_line_warnings(args.command)
     from ..params import ParameterError
     from ..solvers import SolverError
 

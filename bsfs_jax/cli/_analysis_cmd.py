@@ -10,6 +10,8 @@ from ._common import (
     out_dir,
     progress_enabled,
     save_figure,
+    validate_sweep_values,
+    warn_implausible_excitation,
     write_json,
 )
 
@@ -108,6 +110,11 @@ def run(args) -> int:
     except ValueError as exc:
         raise CLIError(str(exc)) from None
     values = np.linspace(args.start, args.stop, args.num)
+    if args.param not in ("frequency_hz", "force_n"):
+        validate_sweep_values(params, args.param, values, "--param")
+    warn_implausible_excitation(
+        forces=values if args.param == "force_n" else [args.force],
+        frequencies=values if args.param == "frequency_hz" else [args.frequency])
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)

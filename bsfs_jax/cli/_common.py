@@ -117,3 +117,35 @@ def progress_enabled(args) -> bool:
     import sys
 
     return not getattr(args, "no_progress", False) and sys.stderr.isatty()
+
+
+#: Plausible excitation of a machine-tool feed drive by a shaker or the cutting process.
+PLAUSIBLE_FORCE_N = 1e5
+PLAUSIBLE_FREQUENCY_HZ = 2e4
+
+
+def warn_implausible_excitation(*, forces=(), frequencies=()) -> None:
+    """One-line warnings for legal but implausible excitation values (a unit slip?)."""
+    import warnings
+
+    for f in forces:
+        if f is not None and abs(float(f)) > PLAUSIBLE_FORCE_N:
+            warnings.warn(f"force {float(f):g} N is above {PLAUSIBLE_FORCE_N:g} N, beyond any "
+                          "shaker or cutting force on a feed drive; check the value and unit",
+                          stacklevel=2)
+            break
+    for f in frequencies:
+        if f is not None and float(f) > PLAUSIBLE_FREQUENCY_HZ:
+            warnings.warn(f"frequency {float(f):g} Hz is above {PLAUSIBLE_FREQUENCY_HZ:g} Hz, "
+                          "far beyond the drive's modes; check the value and unit",
+                          stacklevel=2)
+            break
+
+
+def validate_sweep_values(params, key: str, values, flag: str):
+    """Refuse up front a sweep or map range of a parameter key that crosses an invalid
+    value (every value is validated before anything is computed)."""
+    from ..params import validate
+
+    for v in values:
+        validate(params.replace(key, float(v)), source=f"{flag} {key} = {float(v):g}")

@@ -32,8 +32,8 @@ def register(sub) -> None:
                    help="start frequency [Hz] (a transient simulation there gives the guess)")
     p.add_argument("--stop", type=finite_float, required=True, metavar="HZ",
                    help="stop frequency [Hz]")
-    p.add_argument("--force", type=finite_float, default=3000.0, metavar="N",
-                   help="force amplitude on the nut [N] (3000)")
+    p.add_argument("--force", type=finite_float, default=5000.0, metavar="N",
+                   help="force amplitude on the nut [N] (5000, as sweep and map)")
     add_params_args(p)
     p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
                    help="orbit method: harmonic balance (hb), shooting, or auto (default: "

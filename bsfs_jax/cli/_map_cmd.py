@@ -10,6 +10,8 @@ from ._common import (
     out_dir,
     progress_enabled,
     save_figure,
+    validate_sweep_values,
+    warn_implausible_excitation,
     write_json,
 )
 
@@ -158,6 +160,16 @@ def run(args) -> int:
         return bsfs_problem(p, args.x, frequency_hz=f, force_n=force)
 
     x = np.linspace(args.x_start, args.x_stop, args.x_num)
+    ys = np.linspace(args.y_start, args.y_stop, args.y_num)
+    # Refuse up front a range that crosses an invalid value (not after some rows ran).
+    for y in ys:
+        p_y, _, _ = row(y)
+        if args.x not in (FREQUENCY, FORCE):
+            validate_sweep_values(p_y, args.x, x, "--x")
+    warn_implausible_excitation(
+        forces=[*(x if args.x == FORCE else []), *(ys if args.y == FORCE else []), args.force],
+        frequencies=[*(x if args.x == FREQUENCY else []), *(ys if args.y == FREQUENCY else []),
+                     args.frequency])
     notes = []
 
     def row_bifurcations(y):

@@ -14,6 +14,7 @@ from ._common import (
     out_dir,
     progress_enabled,
     save_figure,
+    warn_implausible_excitation,
     write_json,
 )
 
@@ -118,6 +119,7 @@ def run_simulate(args) -> int:
     if args.periods < 2 or args.transient < 0 or args.samples_per_period < 8:
         raise CLIError("need --periods >= 2, --transient >= 0 and --samples-per-period >= 8")
     params = _apply_common(load_params_from_args(args), args)
+    warn_implausible_excitation(forces=[args.force], frequencies=[args.frequency])
     folder = out_dir(args.out)
     started = time.perf_counter()
     system, md = _report_fn()(params, 0.0)

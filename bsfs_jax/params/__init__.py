@@ -14,8 +14,10 @@ from ._params import Damping as Damping
 from ._params import Masses as Masses
 from ._params import NutParams as NutParams
 from ._params import ParameterError as ParameterError
+from ._params import ParameterWarning as ParameterWarning
 from ._params import ScrewParams as ScrewParams
 from ._params import ThermalParams as ThermalParams
 from ._params import lookup_key as lookup_key
 from ._params import validate as validate
 from ._vocabulary import KEYS as KEYS
+from ._vocabulary import PLAUSIBLE as PLAUSIBLE

@@ -14,7 +14,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._vocabulary import BY_NAME, BY_SECTION, SECTIONS, Key
+from ._vocabulary import BY_NAME, BY_SECTION, PLAUSIBLE, SECTIONS, Key
+
+
+class ParameterWarning(UserWarning):
+    """A legal but implausible parameter value (outside `PLAUSIBLE`): likely a typo or a
+    unit slip. The CLI prints it as one line."""
 
 
 class ParameterError(ValueError):
@@ -259,11 +264,27 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def _check_plausible(key: Key, arr, source: str) -> None:
+    span = PLAUSIBLE.get(key.name)
+    if span is None:
+        return
+    lo, hi = span
+    bad = [float(x) for x in np.atleast_1d(arr).ravel() if not lo <= float(x) <= hi]
+    if bad:
+        import warnings
+
+        warnings.warn(ParameterWarning(
+            f"{source}: '{key.name}' = {bad[0]:g} is outside the plausible range "
+            f"[{lo:g}, {hi:g}] of a machine-tool ball screw drive; check the value and its "
+            "unit (the results may be meaningless)"), stacklevel=3)
+
+
 def validate(params: BallScrewParams, *, source: str = "parameters") -> BallScrewParams:
     """Check every concrete value against its allowed range and the cross-key rules.
 
     Traced values (inside `jit`/`grad`) are skipped: validate before transforming.
-    Raises `ParameterError` naming the key, the value and the allowed range.
+    Raises `ParameterError` naming the key, the value and the allowed range; warns with
+    a `ParameterWarning` for a legal value outside the plausible range (`PLAUSIBLE`).
     """
     for section in SECTIONS:
         module = getattr(params, section)
@@ -274,6 +295,7 @@ def validate(params: BallScrewParams, *, source: str = "parameters") -> BallScre
             arr = np.asarray(v, dtype=float) / key.to_si
             for item in np.atleast_1d(arr).ravel():
                 _check_range(key, float(item), source)
+            _check_plausible(key, arr, source)
     n, b, s = params.nut, params.bearing, params.screw
     leaves = [n.pitch_diameter, n.ball_diameter, b.pitch_diameter, b.ball_diameter,
               s.nominal_diameter, n.contact_angle]

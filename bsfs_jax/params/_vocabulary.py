@@ -118,3 +118,34 @@ KEYS: tuple[Key, ...] = (
 SECTIONS: tuple[str, ...] = ("masses", "damping", "nut", "bearing", "screw", "thermal")
 BY_NAME = {k.name: k for k in KEYS}
 BY_SECTION = {s: tuple(k for k in KEYS if k.section == s) for s in SECTIONS}
+
+
+#: Plausible ranges (file units) of a machine-tool ball screw drive, beyond which a value is
+#: legal but almost certainly a typo or a unit slip (a warning, not an error). From
+#: catalogue ranges of precision ball screws and angular-contact support bearings (shaft
+#: 6-200 mm, lead 1-60 mm, balls 0.8-25 mm; preloads up to tens of kN) and the model's
+#: own scales (the default preset's values sit well inside).
+PLAUSIBLE: dict[str, tuple[float, float]] = {
+    "masses.bearing_kg": (0.01, 5000.0),
+    "masses.screw_kg": (0.01, 5000.0),
+    "masses.nut_kg": (0.01, 5000.0),
+    "damping.bearing_n_s_per_m": (0.0, 1e6),
+    "damping.screw_n_s_per_m": (0.0, 1e6),
+    "damping.nut_n_s_per_m": (0.0, 1e6),
+    "nut.balls": (5.0, 200.0),
+    "nut.ball_diameter_mm": (0.8, 25.0),
+    "nut.contact_angle_deg": (20.0, 70.0),
+    "nut.pitch_diameter_mm": (6.0, 250.0),
+    "nut.lead_mm": (1.0, 60.0),
+    "nut.preload_n": (10.0, 50000.0),
+    "bearing.balls": (5.0, 100.0),
+    "bearing.ball_diameter_mm": (0.8, 25.0),
+    "bearing.contact_angle_deg": (10.0, 70.0),
+    "bearing.pitch_diameter_mm": (6.0, 300.0),
+    "bearing.preload_n": (10.0, 50000.0),
+    "screw.nominal_diameter_mm": (6.0, 200.0),
+    "screw.length_to_nut_mm": (10.0, 10000.0),
+    "screw.total_length_mm": (50.0, 15000.0),
+    "screw.youngs_modulus_gpa": (150.0, 250.0),
+    "thermal.speed_rpm": (0.0, 10000.0),
+}
