@@ -183,3 +183,18 @@ def test_implausible_values_warn_in_one_line_and_still_run(capsys):
         warnings.simplefilter("error")
         for name in list_presets():
             validate(preset(name), source=name)
+
+
+def test_unexpected_errors_are_one_line_with_a_log(capsys, tmp_path, monkeypatch):
+    import bsfs_jax.cli._simulate_cmd as sim
+
+    def boom(args):
+        raise RuntimeError("something nobody expected\nsecond line")
+
+    monkeypatch.setattr(sim, "run_modes", boom)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert main(["modes"]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "internal error: RuntimeError: something nobody" in err
+    log = tmp_path / "bsfs" / "bsfs-error.log"
+    assert "Traceback" in log.read_text() and "second line" in log.read_text()

@@ -214,6 +214,15 @@ def test_synth_cli_writes_a_loadable_record(tmp_path, truth):
                  "--duration", "0.2", "--noise-db", "30", "--out", str(path)]) == 0
     rec = idn.load_record(path)
     assert rec.frequency_hz == 200.0 and rec.time.size == 2048
+    assert rec.meta["parameters"] == str(TRUTH)  # the record names its parameter source
+    # Never over a file the user did not ask to replace, never into a folder.
+    before = path.read_bytes()
+    argv = ["synth", "--params", str(TRUTH), "--frequency", "150", "--force", "100",
+            "--duration", "0.2"]
+    assert main([*argv, "--out", str(path)]) == 1 and path.read_bytes() == before
+    assert main([*argv, "--out", str(tmp_path)]) == 1
+    assert main([*argv, "--out", str(path), "--overwrite"]) == 0
+    assert idn.load_record(path).frequency_hz == 150.0
     d = harmonic_analysis(rec)
     system = bsfs_jax.build_system(truth)
     model = idn._measurement.linear_acceleration(system, 200.0 * jnp.arange(1.0, 4.0),

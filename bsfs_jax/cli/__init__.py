@@ -93,3 +93,34 @@ def main(argv=None) -> int:
                   if args.command in _RESUMABLE else "")
         print(f"bsfs {args.command}: interrupted{resume}", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - the safety net, not the fix: one line + a log
+        log = _write_crash_log(args)
+        print(f"bsfs {args.command}: internal error: {type(exc).__name__}: "
+              f"{str(exc).splitlines()[0] if str(exc) else ''} (the traceback is in {log}; "
+              "please report it with the command line)", file=sys.stderr)
+        return 3
+
+
+def _write_crash_log(args) -> str:
+    """Write the current exception's traceback to OUT/bsfs-error.log (or the cache
+    folder when there is no output folder) and return the path."""
+    import os
+    import tempfile
+    import traceback
+    from pathlib import Path
+
+    text = f"bsfs {' '.join(sys.argv[1:])}\n\n{traceback.format_exc()}"
+    out = getattr(args, "out", None)
+    folders = [Path(out)] if out and Path(out).is_dir() else []
+    folders.append(Path(os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")))
+                   / "bsfs")
+    folders.append(Path(tempfile.gettempdir()))
+    for folder in folders:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / "bsfs-error.log"
+            path.write_text(text)
+            return str(path)
+        except OSError:
+            continue
+    return "(no writable folder for the log)"

@@ -56,6 +56,8 @@ def register(sub) -> None:
     s.add_argument("--sample-rate", type=finite_float, default=10240.0, metavar="HZ")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, metavar="FILE.csv")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace FILE.csv if it exists (refused otherwise)")
     s.set_defaults(func=run_synth)
 
     t = sub.add_parser("plan-test", help="compare exciter test plans by Fisher information",
@@ -130,11 +132,22 @@ def run_synth(args) -> int:
     if args.frequency >= 0.4 * args.sample_rate:
         raise CLIError(f"--frequency {args.frequency:g} Hz is above the anti-alias band "
                        f"(0.4 x sample rate = {0.4 * args.sample_rate:g} Hz)")
+    out = Path(args.out)
+    if out.is_dir():
+        raise CLIError(f"--out '{out}' is a folder; synth writes one record file: give a "
+                       "file name such as record_100hz.csv")
+    if out.exists() and not args.overwrite:
+        raise CLIError(f"--out '{out}' exists; choose another name or add --overwrite")
+    if not out.parent.is_dir():
+        raise CLIError(f"--out '{out}': the folder '{out.parent}' does not exist")
     effects = idn.TestEffects(accel_snr_db=args.noise_db, force_snr_db=args.noise_db + 5.0)
     rec = idn.synthesize(params, args.frequency, args.force, duration_s=args.duration,
                          sample_rate_hz=args.sample_rate, effects=effects, seed=args.seed)
     rec.meta["source"] = "synthetic: bsfs synth"
-    path = idn.write_record_csv(Path(args.out), rec)
+    rec.meta["parameters"] = args.params or f"preset:{args.preset or 'default'}"
+    if args.set:
+        rec.meta["overrides"] = "; ".join(args.set)
+    path = idn.write_record_csv(out, rec)
     print(f"wrote {path}: {rec.summary()}")
     return 0
 
