@@ -198,3 +198,15 @@ def test_unexpected_errors_are_one_line_with_a_log(capsys, tmp_path, monkeypatch
     assert err.count("\n") == 1 and "internal error: RuntimeError: something nobody" in err
     log = tmp_path / "bsfs" / "bsfs-error.log"
     assert "Traceback" in log.read_text() and "second line" in log.read_text()
+
+
+def test_readme_lists_every_preset_and_command():
+    from pathlib import Path
+
+    from bsfs_jax.cli import build_parser
+    from bsfs_jax.params import list_presets
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert [p for p in list_presets() if f"`{p}`" not in readme] == []
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    assert [c for c in sub.choices if f"`bsfs {c}" not in readme] == []

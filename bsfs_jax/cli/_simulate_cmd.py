@@ -164,6 +164,8 @@ def run_simulate(args) -> int:
                      "atol": args.atol, "solver": args.solver, "num_steps": int(traj.num_steps)},
         "parameters": params_summary(params),
         "units": {"amplitude": "um (half peak-to-peak of x_n in steady state)",
+                  "poincare_spread": "1 (peak-to-peak of x_n at t = kT over its amplitude; "
+                                     "0 for period-1 motion)",
                   "offsets": "um (positive reduces contact deformation)"},
         "runtime_s": time.perf_counter() - started,
     }
