@@ -426,3 +426,18 @@ def test_queue_engine_matches_lockstep_map(problem):
     np.testing.assert_allclose(queued.amplitude, reference.amplitude, rtol=1e-5)
     np.testing.assert_allclose(queued.strobe, reference.strobe, rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(queued.spectrum, reference.spectrum, rtol=1e-3, atol=1e-7)
+
+
+def test_waterfall_axis_ends_at_the_content(both):
+    from bsfs_jax.plotting import plot_waterfall
+
+    fig = plot_waterfall(both, direction="up")
+    ax = fig.axes[0]
+    keep = (both.spectrum_order > 0) & (both.spectrum_order <= 8)
+    spec, freq = both.spectrum[0][:, keep], both.spectrum_hz()[:, keep]
+    strong = spec > 1e-3 * np.nanmax(spec)
+    assert ax.get_xlim()[1] == pytest.approx(1.1 * freq[strong].max())
+    assert ax.get_xlim()[1] < freq.max()  # not to the end of the spectrum
+    assert ax.get_xlabel().startswith("Response frequency") and "amplitude" in ax.get_zlabel()
+    log = plot_waterfall(both, direction="up", log_amplitude=True).axes[0]
+    assert log.get_zlabel().startswith("log10 amplitude")

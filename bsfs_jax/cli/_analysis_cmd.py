@@ -54,6 +54,9 @@ def register(sub) -> None:
     p.add_argument("--no-verify", action="store_true",
                    help="skip the verification of the motion labels (they are then reported "
                    "as unverified candidates read from the samples)")
+    p.add_argument("--log-waterfall", action="store_true",
+                   help="draw the waterfall's amplitudes on a log scale (weak harmonics and "
+                   "subharmonics beside the forced line)")
     p.add_argument("--no-folds", action="store_true",
                    help="continued mode: do not locate the folds behind the jumps")
     p.add_argument("--samples-per-period", type=int, default=32)
@@ -142,7 +145,8 @@ def run(args) -> int:
     save_figure(plot_bifurcation(result, title=f"Bifurcation diagram of the nut displacement "
                                  f"vs {swept} {tag}"), folder / "bifurcation.png")
     save_figure(plot_frc(result, jumps=jumps), folder / "frc.png")
-    save_figure(plot_waterfall(result), folder / "waterfall.png")
+    save_figure(plot_waterfall(result, log_amplitude=args.log_waterfall),
+                folder / "waterfall.png")
     failed = summary["failed_points"]
     counts = ", ".join(f"{k} {v}" for k, v in summary["motion_counts"].items())
     state = "verified" if verify is not None else "NOT verified (--no-verify)"

@@ -123,26 +123,42 @@ def plot_frc(result, *, coordinate: int | None = None, jumps=None, title: str | 
 
 
 def plot_waterfall(result, *, direction: str | None = None, max_harmonic: float = 8.0,
+                   log_amplitude: bool = False, significant: float = 1e-3,
                    title: str | None = None):
     """3-D waterfall: amplitude spectrum of the observed state (frequency in Hz when the
-    time unit is s) against the swept parameter."""
+    time unit is s) against the swept parameter.
+
+    The frequency axis ends at the last significant line (amplitude above `significant`
+    times the largest, within `max_harmonic` harmonics of the forcing), not at the
+    Nyquist frequency; `log_amplitude` draws log10 of the amplitude, so that weak
+    harmonics and subharmonics show beside the forced line.
+    """
     d = 0 if direction is None else result.direction_index(direction)
     c = result.observe
     factor, ylabel = _state_label(result, c)
     fig = Figure(figsize=(9, 6))
     ax = fig.add_subplot(projection="3d")
-    keep = result.spectrum_order <= max_harmonic
+    keep = (result.spectrum_order > 0) & (result.spectrum_order <= max_harmonic)
     freq = result.spectrum_hz()[:, keep]
+    spec = result.spectrum[d][:, keep] * factor
+    finite = np.all(np.isfinite(spec), axis=1)
+    top = np.max(spec[finite]) if finite.any() else 1.0
+    strong = finite[:, None] & (spec > significant * top)
+    f_max = float(np.max(freq[strong])) * 1.1 if strong.any() else float(np.max(freq))
+    floor = significant * top * 1e-3
     for i, v in enumerate(result.values):
-        a = result.spectrum[d, i, keep] * factor
-        if not np.all(np.isfinite(a)):
+        if not finite[i]:
             continue
-        ax.plot(freq[i], np.full(freq.shape[1], v), a, lw=0.7, color="C0")
+        a = np.log10(np.maximum(spec[i], floor)) if log_amplitude else spec[i]
+        inside = freq[i] <= f_max
+        ax.plot(freq[i][inside], np.full(int(inside.sum()), v), a[inside], lw=0.7, color="C0")
     funit = "Hz" if result.time_unit == "s" else f"1/{result.time_unit}"
-    ax.set_xlabel(f"frequency [{funit}]")
+    ax.set_xlim(0.0, f_max)
+    ax.set_xlabel(f"Response frequency [{funit}]")
     ax.set_ylabel(_param_label(result))
-    ax.set_zlabel(f"amplitude of {ylabel}")
-    ax.set_title(title or f"Waterfall: spectrum of {ylabel.split(' ')[0]} vs {result.param}")
+    ax.set_zlabel(f"log10 amplitude of {ylabel}" if log_amplitude else f"amplitude of {ylabel}")
+    ax.set_title(title or f"Waterfall: spectrum of {ylabel.split(' ')[0]} vs "
+                 f"{_param_label(result).split(' [')[0].lower()}")
     return fig
 
 
