@@ -229,6 +229,16 @@ def test_cli_sensitivity_writes_json_png_and_report(tmp_path):
     assert len(data["parameters"]) == len(DESIGN_PARAMETERS)
     assert (out / "sensitivity.png").stat().st_size > 10_000
     assert "Comparison with the paper" in (out / "sensitivity.md").read_text()
+    # The exact gradient is probed by central differences by default, on its two largest
+    # entries, and the verdict is reported.
+    check = data["gradient_check"]
+    assert len(check["checked"]) == 2 and check["passed"] is True
+    assert max(check["relative_difference"]) < 1e-2
+    assert "agrees with central differences" in (out / "sensitivity.md").read_text()
+    rc = main(["sensitivity", "--metric", "static_stiffness", "--no-fd-probe",
+               "--out", str(tmp_path / "s2")])
+    unchecked = json.loads((tmp_path / "s2" / "sensitivity.json").read_text())
+    assert rc == 0 and unchecked["gradient_check"]["passed"] is None
 
 
 def test_cli_optimize_rejects_bad_bounds(tmp_path, capsys):
@@ -320,3 +330,16 @@ def test_frc_peak_gradient_at_5000n():
                                              settings=settings, rel_step=1e-3)
     lo, hi = sorted([fd.gradient[1], coarse.gradient[0]])
     assert lo - 1e-5 * abs(lo) <= ad.gradient[1] <= hi + 1e-5 * abs(hi)
+
+
+def test_a_wrong_gradient_is_flagged_never_passed():
+    from types import SimpleNamespace
+
+    from bsfs_jax.cli._design_cmd import _gradient_check
+
+    exact = SimpleNamespace(normalised=np.array([0.8, -0.3, 0.01]))
+    fd = SimpleNamespace(normalised=np.array([0.8, 0.3]))  # the sign of the second is wrong
+    check = _gradient_check(exact, ["a", "b", "c"], None, (["a", "b"], fd))
+    assert check["passed"] is False and "DISAGREES" in check["summary"]
+    good = SimpleNamespace(normalised=np.array([0.8, -0.3]))
+    assert _gradient_check(exact, ["a", "b", "c"], None, (["a", "b"], good))["passed"]

@@ -31,7 +31,11 @@ def register(sub) -> None:
                    help="design parameters (vocabulary names, comma-separated); default: "
                    + ",".join(DESIGN_PARAMETERS))
     p.add_argument("--check-fd", action="store_true",
-                   help="also compute central finite differences and report the agreement")
+                   help="compute central finite differences for every parameter and report "
+                   "the agreement (by default only the two largest entries are probed)")
+    p.add_argument("--no-fd-probe", action="store_true",
+                   help="skip the default central-difference probe of the two largest "
+                   "entries (the gradients are then reported as unchecked)")
     add_params_args(p)
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
@@ -126,9 +130,18 @@ def run_sensitivity(args) -> int:
             fd = finite_difference_sensitivities(metric.name, params, names,
                                                  frequency_hz=args.frequency,
                                                  force_n=args.force)
+        probe = None
+        if fd is None and not args.no_fd_probe:
+            import numpy as np
+
+            top = [names[i] for i in np.argsort(-np.abs(np.asarray(res.normalised)))[:2]]
+            probe = (top, finite_difference_sensitivities(metric.name, params, top,
+                                                          frequency_hz=args.frequency,
+                                                          force_n=args.force))
     except (ValueError, FloatingPointError) as exc:
         raise _design_error(exc) from None
     data = res.to_dict()
+    data["gradient_check"] = _gradient_check(res, names, fd, probe)
     data["description"] = metric.description
     data["direction"] = metric.direction
     data["wall_time_s"] = t_ad
@@ -157,6 +170,7 @@ def run_sensitivity(args) -> int:
     if fd is not None:
         md += [f"Largest relative difference to {fd.method}: "
                f"{data['max_relative_difference_vs_fd']:.2e}.", ""]
+    md += [f"Gradient check: {data['gradient_check']['summary']}", ""]
     md += ["## Comparison with the paper's trends", ""]
     if rows:
         md += [crosscheck_markdown(rows), "",
@@ -173,6 +187,8 @@ def run_sensitivity(args) -> int:
     write_text_atomic(out / "sensitivity.md", "\n".join(md) + "\n")
     print(f"{metric.label}: {res.value:.6g} {res.unit}")
     print(res.table_markdown())
+    check = data["gradient_check"]
+    print(f"gradient check: {check['summary']}")
     print(f"wrote {out / 'sensitivity.json'}, sensitivity.png, sensitivity.md")
     return 0
 
@@ -245,3 +261,35 @@ def run_optimize(args) -> int:
         print("warning: the stiffness constraint is not satisfied at the returned point")
         return 3
     return 0
+
+
+#: Relative disagreement between the exact normalised sensitivity and a central
+#: difference above which the gradient is flagged (differences of orbit metrics carry
+#: ~1e-4 of noise from the solver tolerances).
+FD_TOLERANCE = 1e-2
+
+
+def _gradient_check(res, names, fd, probe) -> dict:
+    """Compare the exact normalised sensitivities with central differences (all of them
+    with --check-fd, else the probed largest entries); never reported as passed unless
+    compared."""
+    import numpy as np
+
+    if fd is None and probe is None:
+        return {"checked": [], "passed": None,
+                "summary": "not checked (--no-fd-probe): the gradients are unverified"}
+    checked = list(names) if fd is not None else list(probe[0])
+    other = fd if fd is not None else probe[1]
+    exact = np.asarray(res.normalised)[[list(names).index(n) for n in checked]]
+    diff = np.asarray(other.normalised)
+    scale = np.maximum(np.abs(diff), 1e-3 * np.max(np.abs(np.asarray(res.normalised))) + 1e-12)
+    rel = np.abs(exact - diff) / scale
+    worst = float(np.max(rel))
+    passed = bool(worst <= FD_TOLERANCE)
+    summary = (f"{'agrees' if passed else 'DISAGREES'} with central differences on "
+               f"{', '.join(checked) if len(checked) <= 3 else f'{len(checked)} parameters'}"
+               f" (largest relative difference {worst:.1e}, tolerance {FD_TOLERANCE:g})")
+    if not passed:
+        summary += "; do not use these gradients before finding the cause"
+    return {"checked": checked, "relative_difference": rel.tolist(), "passed": passed,
+            "tolerance": FD_TOLERANCE, "summary": summary}
