@@ -2,7 +2,7 @@
 
 import time
 
-from ._common import CLIError, finite_float, out_dir
+from ._common import CLIError, finite_float, out_dir, progress_enabled
 
 
 def register(sub) -> None:
@@ -41,7 +41,7 @@ def run_reproduce(args) -> int:
     settings = ReproduceSettings.quick_settings(**kw) if args.quick else ReproduceSettings(**kw)
     folder = out_dir(args.out)
     t0 = time.perf_counter()
-    rep = reproduce(folder, settings, progress=not args.no_progress,
+    rep = reproduce(folder, settings, progress=progress_enabled(args),
                     log=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg}",
                                           flush=True))
     counts = {}
