@@ -134,6 +134,9 @@ def _cases(tmp_path):
         "empty parameter file": (["modes", "--params", str(empty)], 1, "sets no parameters"),
         "output under a file": (sim + ["--out", str(a_file / "sub")], 1,
                                 "is a file, not a folder"),
+        "frequency for a static metric": (
+            ["sensitivity", "--metric", "static_stiffness", "--frequency", "120", "--out",
+             str(tmp_path / "o5")], 1, "--frequency means nothing for --metric static"),
         "sweep range through zero balls": (
             ["sweep", "--param", "nut.balls", "--start", "0", "--stop", "40", "--num", "5",
              "--frequency", "1000", "--out", str(tmp_path / "o4")], 1,
@@ -143,7 +146,8 @@ def _cases(tmp_path):
 
 @pytest.mark.parametrize("name", ["nan force", "inf frequency", "unknown solver",
                                   "binary parameter file", "empty parameter file",
-                                  "output under a file", "sweep range through zero balls"])
+                                  "output under a file", "sweep range through zero balls",
+                                  "frequency for a static metric"])
 def test_named_bad_inputs_end_in_one_line(capsys, tmp_path, name):
     argv, status, text = _cases(tmp_path)[name]
     try:

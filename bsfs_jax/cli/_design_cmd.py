@@ -70,7 +70,10 @@ def register(sub) -> None:
 
 def _operating_args(p, f0, p0):
     p.add_argument("--frequency", type=finite_float, metavar="HZ",
-                   help=f"operating frequency for orbit metrics [Hz] (default {f0:g})")
+                   help=f"operating frequency of the point orbit metrics (amplitude, floquet) "
+                   f"[Hz] (default {f0:g}, the paper's exciter tests); frc_peak locates its "
+                   "own peak frequency and the static metrics use none, so it is refused "
+                   "for them")
     p.add_argument("--force", type=finite_float, metavar="N",
                    help=f"force amplitude on the nut for orbit metrics [N] (default {p0:g})")
 
@@ -119,6 +122,9 @@ def run_sensitivity(args) -> int:
     params = load_params_from_args(args)
     names = _names(args.vary) if args.vary else DESIGN_PARAMETERS
     metric = get_metric(args.metric)
+    if args.frequency is not None and args.metric not in ("amplitude", "floquet"):
+        raise CLIError(f"--frequency means nothing for --metric {args.metric} (frc_peak finds "
+                       "its own peak; the other metrics are static): leave it out")
     out = out_dir(args.out)
     t0 = time.perf_counter()
     try:
