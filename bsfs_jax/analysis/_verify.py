@@ -246,11 +246,11 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
         for k, (strobe, amp, logs, sig) in stats.items():
             if k in done:
                 continue
-            verdict = _judge(ver, k, values[k], strobe, amp, logs, sig, periods[k],
-                             last.get(k), s)
-            last[k] = (strobe, amp, logs)
             # The latest exponent estimate stays as evidence even without a verdict.
             lam = ev.exponent_interval(logs, s.segments)
+            verdict = _judge(ver, k, values[k], strobe, amp, lam, sig, periods[k],
+                             last.get(k), s)
+            last[k] = (strobe, amp, logs)
             for f, x in zip(("lyapunov_per_period", "lyapunov_low", "lyapunov_high"), lam,
                             strict=True):
                 out[f][k] = x
@@ -275,9 +275,10 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
     return out
 
 
-def _judge(ver, k, value, strobe, amp, logs, signal, period, prev, s: VerifySettings):
-    """Verdict of a non-periodic block (None: keep integrating)."""
-    mean, lo, hi = ev.exponent_interval(logs, s.segments)
+def _judge(ver, k, value, strobe, amp, lam, signal, period, prev, s: VerifySettings):
+    """Verdict of a non-periodic block (None: keep integrating); `lam` = (mean, low, high)
+    of lambda T over the block (`_evidence.exponent_interval`)."""
+    mean, lo, hi = lam
     res = {"lyapunov_per_period": mean, "lyapunov_low": lo, "lyapunov_high": hi,
            "amplitude": amp[ver.obs]}
     if prev is None or not np.isfinite(mean):
