@@ -6,7 +6,7 @@ VENV ?= .venv
 BIN = $(VENV)/bin
 STAMP = $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench status clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,10 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# README's status table from the committed outputs (benchmarks/results, docs, tests/last_run.json)
+status:
+	$(if $(wildcard $(BIN)/python),$(BIN)/python,$(PYTHON)) scripts/status.py
 
 clean:
 	rm -rf out .pytest_cache

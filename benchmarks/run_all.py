@@ -1,9 +1,15 @@
 """Run every benchmark script and assemble BENCHMARKS.md from benchmarks/results/*.md.
 
-Usage: python benchmarks/run_all.py [--quick] [--only NAME ...] [--assemble-only]
+Usage: python benchmarks/run_all.py [--quick] [--only NAME ...] [--assemble-only | --check]
+
+BENCHMARKS.md is only ever written by `assemble()` (the header below, then each result's
+Markdown in RESULT_ORDER); `--check` exits 1 with a one-line summary when the committed
+BENCHMARKS.md differs from that assembly (tests/test_status.py checks the same). After a
+run, `python scripts/status.py` (`make status`) puts the new numbers in README's status table.
 """
 
 import argparse
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -23,7 +29,9 @@ def assemble() -> str:
         "the peer's time over ours. Shared 2-core machines drift, so compare ratios, not seconds.",
         "",
     ]
-    found = sorted((HERE / "results").glob("*.md"),
+    # `--quick` results of bench_sweep.py (b1_sweep_quick.md) are a short check, not a result.
+    found = sorted((p for p in (HERE / "results").glob("*.md")
+                    if not p.stem.endswith("_quick")),
                    key=lambda p: (RESULT_ORDER.index(p.name) if p.name in RESULT_ORDER else 99,
                                   p.name))
     for path in found:
@@ -34,12 +42,40 @@ def assemble() -> str:
     return "\n".join(parts)
 
 
-def main():
+def diff_summary(old: str, new: str) -> str:
+    """One line: how many lines differ and where the first difference is."""
+    a, b = old.splitlines(), new.splitlines()
+    n = sum(1 for x, y in zip(a, b, strict=False) if x != y) + abs(len(a) - len(b))
+    first = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y),
+                 min(len(a), len(b)))
+    return f"{n} line(s) differ, the first at line {first + 1}"
+
+
+def write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--only", nargs="*")
-    ap.add_argument("--assemble-only", action="store_true")
-    args = ap.parse_args()
+    ap.add_argument("--assemble-only", action="store_true",
+                    help="run nothing; write BENCHMARKS.md from benchmarks/results/*.md")
+    ap.add_argument("--check", action="store_true",
+                    help="run nothing; exit 1 if BENCHMARKS.md differs from the assembly")
+    args = ap.parse_args(argv)
+    target = HERE.parent / "BENCHMARKS.md"
+    if args.check:
+        text = assemble() + "\n"
+        old = target.read_text() if target.exists() else ""
+        if old == text:
+            print("BENCHMARKS.md is up to date with benchmarks/results/*.md")
+            return 0
+        print(f"BENCHMARKS.md differs from the assembly of benchmarks/results/*.md: "
+              f"{diff_summary(old, text)}; run `python benchmarks/run_all.py --assemble-only`")
+        return 1
     if not args.assemble_only:
         for name in ORDER:
             script = HERE / name
@@ -49,10 +85,12 @@ def main():
             print(f"== {name}", flush=True)
             cmd = [sys.executable, str(script)] + (["--quick"] if args.quick else [])
             subprocess.run(cmd, check=True)
-    text = assemble()
-    (HERE.parent / "BENCHMARKS.md").write_text(text + "\n")
-    print(f"wrote {HERE.parent / 'BENCHMARKS.md'}")
+    write_atomic(target, assemble() + "\n")
+    print(f"wrote {target}")
+    if not args.assemble_only:
+        print("README's status table: run `python scripts/status.py` (make status)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -6,20 +6,46 @@ runs its tests file by file for the same reason. Files run `BSFS_TEST_JOBS` at a
 (default: 2, or 1 on a one-core machine), the longest first, so that the 2-core CI machine
 is kept busy (most of the suite's time is single-threaded XLA compilation). Each file's
 output is printed whole when it ends. Arguments are passed on to pytest.
+
+The run is recorded in `tests/last_run.json` (per file: the counts of pytest's summary line
+and the seconds; totals, date, machine, pytest arguments); `scripts/status.py` fills the
+README's status table from it. `BSFS_TEST_RECORD` names another file for the record, or
+turns it off when empty.
 Exit status: 0 when every file passed, else 1 (the failing files are listed).
 """
 
+import datetime
+import json
 import os
+import platform
+import re
 import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+HERE = Path(__file__).resolve().parent
+RECORD = HERE / "last_run.json"
+
 # Seconds per file on the 2-core machine (one at a time), to start the longest first.
 _EXPECTED_S = {"test_identification.py": 480, "test_notebooks.py": 350, "test_design.py": 245,
                "test_periodic.py": 165, "test_verify.py": 85, "test_sweep.py": 85,
                "test_continuation.py": 75, "test_reproduce.py": 62, "test_simulate.py": 60}
+
+_COUNT = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected)\b")
+_SUMMARY = re.compile(r"^=*\s*(\d+ \w+|no tests ran)\b.* in [\d.]+s")
+
+
+def parse_summary(output: str) -> dict | None:
+    """Counts of pytest's last summary line ("3 passed, 1 skipped in 2.1s"), or None."""
+    for line in reversed(output.splitlines()):
+        if _SUMMARY.match(line.strip()):
+            counts = {"passed": 0, "failed": 0, "errors": 0, "skipped": 0}
+            for n, word in _COUNT.findall(line):
+                counts["errors" if word.startswith("error") else word] = int(n)
+            return counts
+    return None
 
 
 def _run(path, extra, env):
@@ -29,24 +55,74 @@ def _run(path, extra, env):
     return path, proc.returncode, proc.stdout, time.perf_counter() - t0
 
 
-def main(argv=None) -> int:
+def _machine() -> dict:
+    """benchmarks/_machine.py's stamp (CPU model, cores, Python, jax), less its date."""
+    try:
+        sys.path.insert(0, str(HERE.parent / "benchmarks"))
+        from _machine import machine_info
+
+        info = dict(machine_info())
+    except Exception:  # the record must not fail the run
+        info = {"cpu": platform.processor() or "unknown", "cores": os.cpu_count(),
+                "python": platform.python_version()}
+    finally:
+        if sys.path and sys.path[0] == str(HERE.parent / "benchmarks"):
+            sys.path.pop(0)
+    info.pop("date_utc", None)
+    return info
+
+
+def _load() -> list[float] | None:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
+
+
+def write_record(path: Path, data: dict) -> None:
+    """Write the record atomically (a temporary file beside it, then a rename)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
+def main(argv=None, files=None) -> int:
+    """Run `files` (default: every tests/test_*.py), record the run, return the status."""
     extra = list(sys.argv[1:] if argv is None else argv)
-    files = sorted(Path(__file__).parent.glob("test_*.py"),
+    files = sorted(HERE.glob("test_*.py") if files is None else map(Path, files),
                    key=lambda p: (-_EXPECTED_S.get(p.name, 30), p.name))
     env = dict(os.environ)
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env.setdefault(var, "1")
     jobs = int(os.environ.get("BSFS_TEST_JOBS", min(2, os.cpu_count() or 1)))
-    failed = []
+    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
+    load_start = _load()
+    failed, rows = [], []
     start = time.perf_counter()
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         for path, code, output, seconds in pool.map(lambda p: _run(p, extra, env), files):
             print(output, end="", flush=True)
-            print(f"== {path.name}: {'ok' if code in (0, 5) else 'FAILED'} ({seconds:.0f} s)",
-                  flush=True)
-            if code not in (0, 5):  # 5: no tests collected (e.g. all deselected)
+            ok = code in (0, 5)  # 5: no tests collected (e.g. all deselected)
+            print(f"== {path.name}: {'ok' if ok else 'FAILED'} ({seconds:.0f} s)", flush=True)
+            if not ok:
                 failed.append(path.name)
+            counts = parse_summary(output)
+            rows.append({"file": path.name, "status": "ok" if ok else "FAILED",
+                         "exit_code": code, "seconds": round(seconds, 1),
+                         **(counts or {"summary_line_found": False})})
     total = time.perf_counter() - start
+    record_path = os.environ.get("BSFS_TEST_RECORD", str(RECORD))
+    if record_path:
+        keys = ("passed", "failed", "errors", "skipped", "xfailed", "xpassed", "deselected")
+        totals = {k: sum(r.get(k, 0) for r in rows) for k in keys}
+        write_record(Path(record_path), {
+            "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
+            "pytest_args": extra, "slow_tests": bool(os.environ.get("BSFS_SLOW")),
+            "load_average_at_start": load_start, "machine": _machine(),
+            "files": len(rows), "failed_files": failed,
+            "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},
+            "per_file": sorted(rows, key=lambda r: r["file"])})
+        print(f"recorded in {record_path} (`make status` puts it in README's status table)")
     if failed:
         print(f"FAILED files ({len(failed)}): {', '.join(failed)}; total {total:.0f} s")
         return 1

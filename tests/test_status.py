@@ -1,0 +1,209 @@
+"""README's status table and BENCHMARKS.md are generated from the committed outputs.
+
+A hand edit of either, or an output changed without regenerating them, fails here: run
+`make status` (scripts/status.py) or `python benchmarks/run_all.py --assemble-only`.
+Files only, no JAX compilation.
+"""
+
+import importlib.util
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests import run_each
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load(name, path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+status = _load("bsfs_status_script", ROOT / "scripts" / "status.py")
+run_all = _load("bsfs_run_all_script", ROOT / "benchmarks" / "run_all.py")
+
+
+def _git(*args):
+    try:
+        return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True,
+                              text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+
+
+def _record_candidates():
+    """tests/last_run.json as on disk, and as committed when a local `make test` has
+    rewritten it since (the README then legitimately still shows the committed run)."""
+    out = [status.FROM_DISK]
+    if _git("rev-parse", "--git-dir") is None or _git("rev-parse", "--git-dir").returncode:
+        return out
+    shown = _git("show", f"HEAD:{status.RECORD}")
+    if shown is not None and shown.returncode == 0:
+        try:
+            out.append(json.loads(shown.stdout))
+        except json.JSONDecodeError:
+            pass
+    else:
+        out.append(None)  # not committed: the README may show "no recorded run"
+    return out
+
+
+def test_readme_status_block_is_the_generators_output():
+    before, block, after = status.split_readme((ROOT / "README.md").read_text(encoding="utf-8"))
+    rendered = [status.render(ROOT, test_record=rec)[0] for rec in _record_candidates()]
+    if block not in rendered:
+        pytest.fail("README.md's status table is not scripts/status.py's output: "
+                    f"{status.diff_summary(block, rendered[0])}; run `make status` "
+                    "(`python scripts/status.py`), and edit docs/status.toml, not README.md")
+
+
+def test_benchmarks_md_is_the_assembly_of_the_results():
+    text = (ROOT / "BENCHMARKS.md").read_text()
+    expected = run_all.assemble() + "\n"
+    assert text == expected, (
+        f"BENCHMARKS.md: {run_all.diff_summary(text, expected)}; run "
+        "`python benchmarks/run_all.py --assemble-only` (edit benchmarks/results/*.md)")
+
+
+def test_the_generator_reads_no_ignored_file():
+    """Every file it reads is one a fresh clone can have (nothing under out/, .venv/...)."""
+    if _git("rev-parse", "--git-dir") is None or _git("rev-parse", "--git-dir").returncode:
+        pytest.skip("not a git checkout")
+    _, src = status.render(ROOT)
+    read = sorted(set(src.read) | {str(p.relative_to(ROOT)) for p in
+                                   (ROOT / "benchmarks" / "results").glob("*.md")})
+    ignored = _git("check-ignore", *read)
+    assert ignored.stdout.strip() == "", f"reads git-ignored files: {ignored.stdout.split()}"
+
+
+def test_every_placeholder_is_known():
+    templates = status.load_templates(ROOT)
+    values = status.collect(status.Sources(ROOT), templates)
+    parts = [p for row in templates["row"] for p in row.get("text", [])]
+    parts.append(templates.get("footer", ""))
+    names = {n for p in parts for n in status._PLACEHOLDER.findall(p)}
+    assert names <= set(values), sorted(names - set(values))
+    # A missing value names its file (the row then says "not measured in this clone").
+    for name in names:
+        if isinstance(values[name], status.Missing):
+            assert re.search(r"\w/\w", values[name].why), (name, values[name].why)
+
+
+def _copy_tree(tmp_path):
+    for rel in ["README.md", "BENCHMARKS.md", status.TEMPLATES, "docs/REPRODUCTION.md",
+                "docs/ROUTE_TO_CHAOS.md", status.RECORD, "bsfs_jax/design/_metrics.py"]:
+        if (ROOT / rel).exists():
+            (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(ROOT / rel, tmp_path / rel)
+    shutil.copytree(ROOT / "benchmarks" / "results", tmp_path / "benchmarks" / "results")
+    shutil.copytree(ROOT / "bsfs_jax" / "params" / "presets",
+                    tmp_path / "bsfs_jax" / "params" / "presets")
+    return tmp_path
+
+
+def test_a_missing_output_is_said_not_replaced_by_an_old_number(tmp_path):
+    root = _copy_tree(tmp_path)
+    (root / "benchmarks" / "results" / "b1_sweep.json").unlink()
+    (root / "docs" / "REPRODUCTION.md").unlink()
+    block, _ = status.render(root, test_record=None)
+    rows = {ln.split(" | ")[0].lstrip("| "): ln for ln in block.splitlines()
+            if ln.startswith("| ")}
+    sweeps = rows["Sweeps and analysis"]
+    assert "not measured in this clone: no benchmarks/results/b1_sweep.json" in sweeps
+    assert "8.51" not in sweeps and "141x" not in sweeps
+    assert "? s sharded" in sweeps
+    assert "Done and validated on textbook systems" in sweeps  # the other parts stay
+    assert "no docs/REPRODUCTION.md" in rows["Reproduction of the paper"]
+    assert "Fig. 18" not in rows["Reproduction of the paper"]
+    assert "Tests: no recorded run in this clone." in rows["Design"]
+
+
+def test_check_fails_on_a_hand_edit_and_the_generator_repairs_it(tmp_path):
+    root = _copy_tree(tmp_path)
+    script = [sys.executable, str(ROOT / "scripts" / "status.py"), "--root", str(root)]
+    readme = root / "README.md"
+    status.main(["--root", str(root)])  # up to date with this copy, whatever the record
+    readme.write_text(readme.read_text().replace("cold frequencies", "cold frequencies!", 1))
+    res = subprocess.run(script + ["--check"], capture_output=True, text=True)
+    assert res.returncode == 1
+    assert "1 row(s) differ (Sweeps and analysis)" in res.stdout
+    assert len(res.stdout.strip().splitlines()) == 1
+    res = subprocess.run(script, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert subprocess.run(script + ["--check"], capture_output=True).returncode == 0
+    text = readme.read_text()
+    assert text.count(status.BEGIN) == 1 and "## Benchmarks" in text  # the rest is kept
+
+
+def test_test_counts_come_from_the_record(tmp_path):
+    rec = {"date_utc": "2030-01-02 03:04", "seconds": 600.0, "jobs": 2, "pytest_args": [],
+           "slow_tests": False, "load_average_at_start": [1.5, 1, 1],
+           "machine": {"cpu": "CPU", "cores": 2}, "files": 2, "failed_files": ["test_cli.py"],
+           "totals": {"passed": 11, "failed": 1, "errors": 0, "skipped": 2},
+           "per_file": [
+               {"file": "test_cli.py", "status": "FAILED", "exit_code": 1, "seconds": 500.0,
+                "passed": 9, "failed": 1, "errors": 0, "skipped": 0},
+               {"file": "test_new.py", "status": "ok", "exit_code": 0, "seconds": 100.0,
+                "passed": 2, "failed": 0, "errors": 0, "skipped": 2}]}
+    block, _ = status.render(ROOT, test_record=rec)
+    assert "`test_cli.py` 9 passed, **1 failed**" in block
+    assert "`test_physics.py` not in the last recorded run" in block
+    assert "`test_new.py` 2 passed, 2 skipped" in block  # unassigned: in "Tests and CI"
+    assert "11 passed, **1 failed**, 2 skipped in 2 files" in block
+    assert "as of the last recorded run, 2030-01-02 03:04 UTC" in block
+
+
+def test_run_each_reads_pytest_summary_lines():
+    parse = run_each.parse_summary
+    assert parse("...\n1 failed, 7 passed, 1 skipped, 2 warnings in 3.10s\n") == {
+        "passed": 7, "failed": 1, "errors": 0, "skipped": 1}
+    assert parse("= 2 passed, 1 error in 9.0s (0:00:09) =")["errors"] == 1
+    assert parse("3 deselected in 0.50s")["deselected"] == 3
+    assert parse("no tests ran in 0.01s")["passed"] == 0
+    assert parse("Fatal Python error: Segmentation fault") is None
+
+
+def test_run_each_records_the_run(tmp_path, monkeypatch, capsys):
+    (tmp_path / "test_tiny.py").write_text(
+        "import pytest\n\ndef test_a():\n    pass\n\n\ndef test_b():\n    assert False\n\n\n"
+        "@pytest.mark.skip\ndef test_c():\n    pass\n")
+    record = tmp_path / "record.json"
+    monkeypatch.setenv("BSFS_TEST_RECORD", str(record))
+    monkeypatch.setenv("BSFS_TEST_JOBS", "1")
+    assert run_each.main(["-p", "no:cacheprovider"], files=[tmp_path / "test_tiny.py"]) == 1
+    out = capsys.readouterr().out
+    assert "1 failed, 1 passed, 1 skipped" in out and "FAILED files (1): test_tiny.py" in out
+    rec = json.loads(record.read_text())
+    assert rec["totals"] == {"passed": 1, "failed": 1, "errors": 0, "skipped": 1}
+    assert rec["failed_files"] == ["test_tiny.py"] and rec["files"] == 1
+    assert rec["pytest_args"] == ["-p", "no:cacheprovider"]
+    assert rec["machine"]["cores"] and len(rec["date_utc"]) == 16
+    (row,) = rec["per_file"]
+    assert row["file"] == "test_tiny.py" and row["status"] == "FAILED" and row["seconds"] > 0
+    block, _ = status.render(ROOT, test_record=rec)  # the generator takes what it wrote
+    assert "with pytest arguments `-p no:cacheprovider` (a partial run)" in block
+
+
+def test_run_all_check_is_one_line_and_exits_1_on_a_difference(tmp_path, monkeypatch, capsys):
+    fake = tmp_path / "benchmarks"
+    (fake / "results").mkdir(parents=True)
+    (fake / "results" / "simulate.md").write_text("# S1\n\ntext\n")
+    (fake / "results" / "b1_sweep_quick.md").write_text("# quick check\n")
+    monkeypatch.setattr(run_all, "HERE", fake)
+    assert run_all.main(["--assemble-only"]) == 0
+    text = (tmp_path / "BENCHMARKS.md").read_text()
+    assert "## S1" in text and "quick check" not in text
+    capsys.readouterr()
+    assert run_all.main(["--check"]) == 0
+    (tmp_path / "BENCHMARKS.md").write_text(text.replace("text", "edited"))
+    assert run_all.main(["--check"]) == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1].startswith("BENCHMARKS.md differs") and "1 line(s) differ" in out[-1]
