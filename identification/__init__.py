@@ -4,20 +4,26 @@ Public API (the package uses only the public API of `bsfs_jax`):
 
 - records: `load_record`, `load_records`, `write_record_csv`, `write_record_uff`, `Record`,
   `RecordError`;
+- FRFs: `FrfRecord`, `estimate_frf` (from chirp/random records), `frf_variance`,
+  `write_frf_csv`, `write_frf_uff`;
 - synthetic data: `synthesize`, `TestEffects`;
 - measurement model: `harmonic_analysis`, `HarmonicData`;
-- fitting: `FIT_PARAMETERS`, `Problem`, `identify`, `IdentificationResult`;
-- uncertainty: `uncertainty`, `Uncertainty`;
+- fitting: `FIT_PARAMETERS`, `DEFAULT_FIT`, `PRELOAD_FIT`, `parse_fit`, `parse_priors`,
+  `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
+- uncertainty: `uncertainty`, `Uncertainty`, `profile_intervals`;
+- reports: `report_dict`, `parameter_rows`, `summary_text`, `preload_verdicts`,
+  `write_identified`;
 - test planning: `plan_test`, `candidate_plans`;
 - bundled data: `bundled_records`, `DATA_DIR`.
 """
 
-from ._fit import DEFAULT_FIT as DEFAULT_FIT
-from ._fit import FIT_PARAMETERS as FIT_PARAMETERS
+from ._csv import write_frf_csv as write_frf_csv
+from ._csv import write_record_csv as write_record_csv
 from ._fit import FitResult as FitResult
-from ._fit import Problem as Problem
 from ._fit import fit as fit
-from ._fit import parse_fit as parse_fit
+from ._frf import FrfRecord as FrfRecord
+from ._frf import estimate_frf as estimate_frf
+from ._frf import frf_variance as frf_variance
 from ._measurement import HarmonicData as HarmonicData
 from ._measurement import harmonic_analysis as harmonic_analysis
 from ._plan import PlannedRecord as PlannedRecord
@@ -26,19 +32,30 @@ from ._plan import candidate_plans as candidate_plans
 from ._plan import fisher_std as fisher_std
 from ._plan import plan_from_records as plan_from_records
 from ._plan import plan_test as plan_test
+from ._problem import DEFAULT_FIT as DEFAULT_FIT
+from ._problem import FIT_PARAMETERS as FIT_PARAMETERS
+from ._problem import PRELOAD_FIT as PRELOAD_FIT
+from ._problem import Problem as Problem
+from ._problem import parse_fit as parse_fit
+from ._problem import parse_priors as parse_priors
+from ._profile import profile_intervals as profile_intervals
 from ._records import Record as Record
 from ._records import RecordError as RecordError
 from ._records import load_record as load_record
 from ._records import load_records as load_records
-from ._records import write_record_csv as write_record_csv
-from ._records import write_record_uff as write_record_uff
 from ._report import DATA_DIR as DATA_DIR
 from ._report import IdentificationResult as IdentificationResult
 from ._report import bundled_records as bundled_records
 from ._report import identify as identify
+from ._report import measurement_data as measurement_data
+from ._report import parameter_rows as parameter_rows
 from ._report import report_dict as report_dict
 from ._report import write_identified as write_identified
+from ._summary import preload_verdicts as preload_verdicts
+from ._summary import summary_text as summary_text
 from ._synth import TestEffects as TestEffects
 from ._synth import synthesize as synthesize
+from ._uff import write_frf_uff as write_frf_uff
+from ._uff import write_record_uff as write_record_uff
 from ._uncertainty import Uncertainty as Uncertainty
 from ._uncertainty import uncertainty as uncertainty

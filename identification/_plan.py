@@ -15,8 +15,8 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from ._fit import DEFAULT_FIT, Problem
 from ._measurement import HarmonicData
+from ._problem import DEFAULT_FIT, Problem
 from ._records import Record
 from ._uncertainty import IDENTIFIABLE_STD
 
@@ -81,7 +81,7 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.
                force_snr_db=40.0, sample_rate_hz=10240.0, distortion=(0.04, 0.02)):
     """(names, expected std of the scaled parameters, scaled singular values, problem)."""
     data = _planned_data(plan, prior, sample_rate_hz, distortion)
-    first = Problem(data, prior, fit_names)
+    first = Problem(data, prior, fit_names, priors=None)
     acc = first.model_harmonics(np.zeros(first.n_params))
     noisy = []
     for d, a in zip(data, acc):
@@ -91,7 +91,7 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.
         noisy.append(dataclasses.replace(d, acceleration=np.asarray(a),
                                          acceleration_var=np.full((a.size, 2), var_a),
                                          force_var=np.full((a.size, 2), var_f)))
-    problem = Problem(noisy, prior, fit_names)
+    problem = Problem(noisy, prior, fit_names, priors=None)
     jac = np.asarray(problem._jac_jit(jnp.zeros(problem.n_params), problem.groups))[
         problem.used_mask()]
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)

@@ -1,40 +1,54 @@
-"""Exciter records: reading (CSV with `# key = value` header, UFF58), checking and writing.
+"""Exciter records: the record types, loading by file type, and the checks shared by formats.
 
-A record is one stationary sine test: the force on the worktable and the worktable
-acceleration, sampled uniformly. The loader refuses a bad record with a `RecordError` that
-names the file, the line (CSV) and what to do; it never drops or repairs data silently.
+Two kinds of record:
 
-CSV layout::
+- `Record`: time data, force on the worktable and worktable acceleration sampled uniformly,
+  from a stepped-sine (`excitation = sine`, the default), swept-sine (`chirp`) or random
+  (`random`) test;
+- `FrfRecord`: a frequency response function, worktable acceleration over exciter force
+  (accelerance, (m/s^2)/N) with the variance of each line, from an analyser or hammer test
+  or estimated from a chirp/random record (both in `_frf.py`).
 
-    # frequency_hz = 120.0
-    # force_amplitude_n = 100.0
-    # sample_rate_hz = 10240.0
-    # speed_rpm = 2000.0
-    # ambient_c = 20.0
-    time_s,force_n,acceleration_m_s2
-    0.0000000,1.234,0.0123
-    ...
+`load_record(path)` dispatches on the extension (`.csv`: `_csv.py`; `.uff`/`.unv` UFF58:
+`_uff.py`) and on the content (`# kind = frf` in a CSV header; UFF58 function type 4). A bad
+file is refused with a `RecordError` that names the file, the line or field, and what to do;
+the loaders never drop or repair data silently.
 
-Optional header keys: `force_range_n` and `acceleration_range_m_s2` (the full-scale ranges
-of the acquisition channels; used for the clipping check), `description`, `source`, and
-any other `key = value` (kept in `meta`, reported, not used).
+Header keys of a time record (`# key = value` in CSV, `key=value` in the UFF id lines):
+
+- all: `sample_rate_hz`, `speed_rpm`, `ambient_c`; optional `excitation` (sine),
+  `force_range_n`, `acceleration_range_m_s2` (full-scale ranges, for the clipping check);
+- sine: `frequency_hz`, `force_amplitude_n` (amplitude of the fundamental);
+- chirp: `start_hz`, `stop_hz`, `force_amplitude_n` (the sweep's constant amplitude);
+- random: `force_rms_n` (RMS force); optional `start_hz`, `stop_hz` (the drive band).
+
+For chirp and random records `Record.frequency_hz` is NaN (there is no single frequency)
+and `Record.force_amplitude_n` holds the header's force level (the RMS for random).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bsfs_jax.params import write_text_atomic
+if TYPE_CHECKING:
+    from ._frf import FrfRecord
 
 COLUMNS = ("time_s", "force_n", "acceleration_m_s2")
+EXCITATIONS = ("sine", "chirp", "random")
+FRF_EXCITATIONS = ("chirp", "random", "hammer", "frf")
+COMMON_META = ("sample_rate_hz", "speed_rpm", "ambient_c")
 REQUIRED_META = ("frequency_hz", "force_amplitude_n", "sample_rate_hz", "speed_rpm", "ambient_c")
+_LEVEL_KEY = {"sine": "force_amplitude_n", "chirp": "force_amplitude_n", "random": "force_rms_n"}
 MIN_PERIODS = 20
+MIN_BROADBAND_SAMPLES = 1024
+MIN_BAND_LINES = 20  # a chirp's band must hold this many lines of 1/duration
+BAND_POWER_MIN = 0.8  # share of the force's power inside a chirp/random record's band
 # Relative tolerances of the checks (documented in the error messages).
 TIME_JITTER_REL = 1e-2  # sample spacing may differ from the median by 1 %
 SAMPLE_RATE_REL = 1e-3  # header sample rate vs time column
@@ -48,10 +62,11 @@ class RecordError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class Record:
-    """One exciter record (SI units).
+    """One exciter time record (SI units).
 
     - `time` [s], `force` [N], `acceleration` [m/s^2]: 1-D arrays of equal length;
-    - `frequency_hz`, `force_amplitude_n`, `sample_rate_hz`, `speed_rpm`, `ambient_c`;
+    - `frequency_hz` (NaN for chirp/random), `force_amplitude_n` (the force level: amplitude
+      for sine and chirp, RMS for random), `sample_rate_hz`, `speed_rpm`, `ambient_c`;
     - `meta`: every header key (strings converted to float where possible);
     - `source`: the file name (for messages and reports).
     """
@@ -72,6 +87,23 @@ class Record:
         return Path(self.source).stem
 
     @property
+    def excitation(self) -> str:
+        """"sine", "chirp" or "random" (header key `excitation`; default sine)."""
+        return str(self.meta.get("excitation", "sine"))
+
+    @property
+    def start_hz(self) -> float | None:
+        """Lower band edge of a chirp or random record [Hz] (None for a sine)."""
+        v = self.meta.get("start_hz")
+        return float(v) if isinstance(v, float) else None
+
+    @property
+    def stop_hz(self) -> float | None:
+        """Upper band edge of a chirp or random record [Hz] (None for a sine)."""
+        v = self.meta.get("stop_hz")
+        return float(v) if isinstance(v, float) else None
+
+    @property
     def duration(self) -> float:
         return float(self.time[-1] - self.time[0] + 1.0 / self.sample_rate_hz)
 
@@ -80,25 +112,38 @@ class Record:
         return self.duration * self.frequency_hz
 
     def summary(self) -> str:
-        return (f"{self.name}: {self.frequency_hz:g} Hz, {self.force_amplitude_n:g} N, "
-                f"{self.speed_rpm:g} r/min, {self.time.size} samples at "
+        tail = (f"{self.speed_rpm:g} r/min, {self.time.size} samples at "
                 f"{self.sample_rate_hz:g} Hz ({self.duration:.2f} s)")
+        if self.excitation == "sine":
+            return f"{self.name}: {self.frequency_hz:g} Hz, {self.force_amplitude_n:g} N, {tail}"
+        band = (f" {self.start_hz:g}-{self.stop_hz:g} Hz" if self.start_hz is not None
+                and self.stop_hz is not None else "")
+        level = "N RMS" if self.excitation == "random" else "N"
+        return f"{self.name}: {self.excitation}{band}, {self.force_amplitude_n:g} {level}, {tail}"
 
 
-# ----------------------------------------------------------------------------- reading
+# ----------------------------------------------------------------------------- loading
 
 
-def load_record(path) -> Record:
-    """Read and check one record (`.csv` or `.uff`/`.unv` UFF58). Raises `RecordError`."""
+def load_record(path) -> Record | FrfRecord:
+    """Read and check one record (`.csv`, or `.uff`/`.unv` UFF58): a time `Record` or an
+    `FrfRecord`. Raises `RecordError`."""
     path = Path(path)
     if not path.exists():
         raise RecordError(f"{path}: no such file. Give the path of a record (.csv or .uff).")
     if path.suffix.lower() in (".uff", ".unv"):
-        return _load_uff(path)
-    return _load_csv(path)
+        from ._uff import load_uff
+
+        return load_uff(path)
+    if path.suffix.lower() in (".tdms",):
+        raise RecordError(f"{path}: TDMS is not read (npTDMS is not a dependency). Export the "
+                          "channels as CSV (time_s,force_n,acceleration_m_s2) or UFF58.")
+    from ._csv import load_csv
+
+    return load_csv(path)
 
 
-def load_records(paths) -> list[Record]:
+def load_records(paths) -> list[Record | FrfRecord]:
     """Read several records; refuses duplicates of the same file."""
     seen = set()
     out = []
@@ -113,7 +158,7 @@ def load_records(paths) -> list[Record]:
     return out
 
 
-def _parse_value(text: str):
+def parse_value(text: str):
     text = text.strip()
     if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
         return text[1:-1]
@@ -123,91 +168,59 @@ def _parse_value(text: str):
         return text
 
 
-def _load_csv(path: Path) -> Record:
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecordError(f"{path}: cannot read as text ({exc}).") from None
-    meta: dict = {}
-    header_line = None
-    for i, line in enumerate(lines):
-        stripped = line.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            body = stripped.lstrip("#").strip()
-            if "=" in body:
-                key, value = body.split("=", 1)
-                meta[key.strip()] = _parse_value(value)
-            continue
-        header_line = i
-        break
-    if header_line is None:
-        raise RecordError(f"{path}: no column header line found. After the '# key = value' "
-                          f"lines, write the header '{','.join(COLUMNS)}' and the samples.")
-    names = [c.strip() for c in lines[header_line].split(",")]
-    where = f"{path}:{header_line + 1}"
-    unknown = [c for c in names if c not in COLUMNS]
-    if unknown:
-        raise RecordError(f"{where}: unknown column(s) {', '.join(repr(c) for c in unknown)}. "
-                          f"The columns must be exactly {', '.join(COLUMNS)} (SI units); rename "
-                          "or remove the others.")
-    missing = [c for c in COLUMNS if c not in names]
-    if missing:
-        raise RecordError(f"{where}: missing column(s) {', '.join(repr(c) for c in missing)}. "
-                          f"A record needs {', '.join(COLUMNS)}.")
-    if len(set(names)) != len(names):
-        raise RecordError(f"{where}: a column appears twice in {names}.")
-    body = "\n".join(lines[header_line + 1:])
-    first_data_line = header_line + 2  # 1-based line number of the first sample
-    try:
-        data = np.loadtxt(io.StringIO(body), delimiter=",", ndmin=2)
-    except ValueError:
-        data = None
-    if data is None or data.shape[1] != len(names):
-        _locate_bad_row(path, lines[header_line + 1:], first_data_line, len(names))
-    _check_meta(path, meta)
-    cols = {n: data[:, j] for j, n in enumerate(names)}
-    return _finish(path, cols["time_s"], cols["force_n"], cols["acceleration_m_s2"], meta,
-                   lambda idx: f"{path}:{first_data_line + idx}")
+def excitation_of(path, meta: dict, allowed=EXCITATIONS, default="sine") -> str:
+    kind = meta.get("excitation", default)
+    if kind not in allowed:
+        raise RecordError(f"{path}: header 'excitation = {kind}' is not one of "
+                          f"{', '.join(allowed)}.")
+    return str(kind)
 
 
-def _locate_bad_row(path, rows, first_line, ncols):
-    for j, row in enumerate(rows):
-        if not row.strip():
-            raise RecordError(f"{path}:{first_line + j}: empty line inside the data. Remove it "
-                              "(the loader does not skip lines silently).")
-        parts = row.split(",")
-        if len(parts) != ncols:
-            raise RecordError(f"{path}:{first_line + j}: {len(parts)} values, expected {ncols}. "
-                              "Fix or remove this line.")
-        for p in parts:
-            try:
-                float(p)
-            except ValueError:
-                raise RecordError(f"{path}:{first_line + j}: '{p.strip()}' is not a number. "
-                                  "Fix the value or cut the record before it.") from None
-    raise RecordError(f"{path}: could not parse the samples.")
+def required_meta(excitation: str) -> tuple:
+    if excitation == "chirp":
+        return ("start_hz", "stop_hz", "force_amplitude_n", *COMMON_META)
+    if excitation == "random":
+        return ("force_rms_n", *COMMON_META)
+    return REQUIRED_META
 
 
-def _check_meta(path, meta: dict) -> None:
-    missing = [k for k in REQUIRED_META if k not in meta]
+def check_numbers(path, meta: dict, keys, positive=(), line_hint="above the column header"):
+    missing = [k for k in keys if k not in meta]
     if missing:
         raise RecordError(f"{path}: header key(s) {', '.join(missing)} missing. Add lines like "
-                          f"'# {missing[0]} = ...' above the column header.")
-    for k in REQUIRED_META:
+                          f"'# {missing[0]} = ...' {line_hint}.")
+    for k in keys:
         v = meta[k]
         if not isinstance(v, float) or not math.isfinite(v):
             raise RecordError(f"{path}: header '{k} = {v}' is not a finite number.")
-    for k in ("frequency_hz", "force_amplitude_n", "sample_rate_hz"):
-        if meta[k] <= 0:
+    for k in positive:
+        if k in meta and meta[k] <= 0:
             raise RecordError(f"{path}: header '{k} = {meta[k]:g}' must be positive.")
-    if meta["speed_rpm"] < 0:
+    if "speed_rpm" in keys and meta["speed_rpm"] < 0:
         raise RecordError(f"{path}: header 'speed_rpm = {meta['speed_rpm']:g}' must be >= 0.")
 
 
-def _finish(path, t, force, acc, meta, line_of) -> Record:
-    """All checks that do not depend on the file format. `line_of(i)` names sample i."""
+def check_meta(path, meta: dict) -> str:
+    """Check a time record's header; returns its excitation."""
+    kind = excitation_of(path, meta)
+    keys = required_meta(kind)
+    optional_band = [k for k in ("start_hz", "stop_hz") if k in meta and k not in keys]
+    check_numbers(path, meta, (*keys, *optional_band),
+                  positive=("frequency_hz", "force_amplitude_n", "force_rms_n", "sample_rate_hz",
+                            "start_hz", "stop_hz"))
+    if ("start_hz" in meta) != ("stop_hz" in meta):
+        raise RecordError(f"{path}: give both start_hz and stop_hz (the excited band) or "
+                          "neither.")
+    if "start_hz" in meta and not meta["start_hz"] < meta["stop_hz"]:
+        raise RecordError(f"{path}: header start_hz = {meta['start_hz']:g} must be below "
+                          f"stop_hz = {meta['stop_hz']:g}.")
+    return kind
+
+
+def finish(path, t, force, acc, meta, line_of) -> Record:
+    """All checks of a time record that do not depend on the file format. `line_of(i)`
+    names sample i."""
+    kind = check_meta(path, meta)
     n = t.size
     if n < 16:
         raise RecordError(f"{path}: only {n} samples. Record at least {MIN_PERIODS} excitation "
@@ -218,13 +231,29 @@ def _finish(path, t, force, acc, meta, line_of) -> Record:
             raise RecordError(f"{line_of(bad[0])}: {name} is {x[bad[0]]} (non-finite; {bad.size} "
                               "such sample(s) in all). Re-export the record, or cut it to a "
                               "clean stretch; the loader never drops samples.")
+    _check_time(path, t, float(meta["sample_rate_hz"]), line_of)
+    fs = float(meta["sample_rate_hz"])
+    for name, x, key in (("force_n", force, "force_range_n"),
+                         ("acceleration_m_s2", acc, "acceleration_range_m_s2")):
+        _check_clipping(path, name, x, meta.get(key), line_of)
+    if kind == "sine":
+        _check_sine(path, force, meta, n / fs)
+        f0 = float(meta["frequency_hz"])
+    else:
+        _check_broadband(path, force, meta, kind, n)
+        f0 = math.nan
+    return Record(np.asarray(t, float), np.asarray(force, float), np.asarray(acc, float),
+                  f0, float(meta[_LEVEL_KEY[kind]]), fs, float(meta["speed_rpm"]),
+                  float(meta["ambient_c"]), dict(meta), str(path))
+
+
+def _check_time(path, t, fs, line_of):
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         i = bad[0] + 1
         raise RecordError(f"{line_of(i)}: time_s = {t[i]!r} does not increase (previous "
                           f"{t[i - 1]!r}). Time must increase strictly; fix the export.")
-    fs = float(meta["sample_rate_hz"])
     dt_med = float(np.median(dt))
     jitter = np.abs(dt - dt_med) > TIME_JITTER_REL * dt_med
     bad = np.flatnonzero(jitter)
@@ -239,8 +268,10 @@ def _finish(path, t, force, acc, meta, line_of) -> Record:
         raise RecordError(
             f"{path}: header sample_rate_hz = {fs:g} but the time column gives {fs_time:.6g} Hz. "
             "Correct the header (or the time column) so that they agree within 0.1 %.")
-    f0 = float(meta["frequency_hz"])
-    duration = n / fs
+
+
+def _check_sine(path, force, meta, duration):
+    fs, f0 = float(meta["sample_rate_hz"]), float(meta["frequency_hz"])
     if duration * f0 < MIN_PERIODS:
         raise RecordError(
             f"{path}: only {duration * f0:.1f} excitation periods ({duration:.3f} s at {f0:g} Hz);"
@@ -248,18 +279,39 @@ def _finish(path, t, force, acc, meta, line_of) -> Record:
     if f0 >= 0.5 * fs:
         raise RecordError(f"{path}: frequency_hz = {f0:g} is not below the Nyquist frequency "
                           f"{0.5 * fs:g} Hz of sample_rate_hz = {fs:g}.")
-    for name, x, key in (("force_n", force, "force_range_n"),
-                         ("acceleration_m_s2", acc, "acceleration_range_m_s2")):
-        _check_clipping(path, name, x, meta.get(key), line_of)
     f_dom = dominant_frequency(force, fs)
     tol = max(1.5 / duration, 0.01 * f0)
     if abs(f_dom - f0) > tol:
         raise RecordError(
             f"{path}: header frequency_hz = {f0:g} but the measured force's dominant frequency is "
             f"{f_dom:.4g} Hz. Correct the header (or check the channel assignment).")
-    return Record(np.asarray(t, float), np.asarray(force, float), np.asarray(acc, float),
-                  f0, float(meta["force_amplitude_n"]), fs, float(meta["speed_rpm"]),
-                  float(meta["ambient_c"]), dict(meta), str(path))
+
+
+def _check_broadband(path, force, meta, kind, n):
+    fs = float(meta["sample_rate_hz"])
+    if n < MIN_BROADBAND_SAMPLES:
+        raise RecordError(f"{path}: only {n} samples; a {kind} record needs at least "
+                          f"{MIN_BROADBAND_SAMPLES} for an FRF estimate. Record longer.")
+    if "stop_hz" not in meta:
+        return
+    lo, hi = float(meta["start_hz"]), float(meta["stop_hz"])
+    if hi >= 0.5 * fs:
+        raise RecordError(f"{path}: stop_hz = {hi:g} is not below the Nyquist frequency "
+                          f"{0.5 * fs:g} Hz of sample_rate_hz = {fs:g}.")
+    if (hi - lo) * n / fs < MIN_BAND_LINES:
+        raise RecordError(f"{path}: the band {lo:g}-{hi:g} Hz holds only "
+                          f"{(hi - lo) * n / fs:.1f} lines of 1/duration; record longer or "
+                          "sweep a wider band.")
+    x = np.asarray(force, float) - np.mean(force)
+    spec = np.abs(np.fft.rfft(x)) ** 2
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    slack = 0.1 * (hi - lo)
+    share = float(np.sum(spec[(f >= lo - slack) & (f <= hi + slack)]) / max(np.sum(spec), 1e-300))
+    if share < BAND_POWER_MIN:
+        raise RecordError(
+            f"{path}: only {100 * share:.0f} % of the force's power lies in the header's band "
+            f"{lo:g}-{hi:g} Hz (at least {100 * BAND_POWER_MIN:.0f} % expected). Correct "
+            "start_hz/stop_hz (or check the channel assignment).")
 
 
 def _check_clipping(path, name, x, full_scale, line_of):
@@ -300,101 +352,9 @@ def dominant_frequency(x, fs: float) -> float:
     return float(k * fs / n)
 
 
-# ----------------------------------------------------------------------------- UFF58
 
-_UFF_FORCE, _UFF_ACC = 13, 12  # UFF58 ordinate specific data types
-
-
-def _load_uff(path: Path) -> Record:
-    try:
-        import pyuff
-    except ImportError:
-        raise RecordError(f"{path}: reading UFF needs pyuff (pip install 'bsfs[uff]').") from None
-    try:
-        sets = pyuff.UFF(str(path)).read_sets()
-    except Exception as exc:  # pyuff raises a variety of errors on bad files
-        raise RecordError(f"{path}: not a readable UFF file ({exc}).") from None
-    if isinstance(sets, dict):
-        sets = [sets]
-    sets = [s for s in sets if s.get("type") == 58]
-    by_kind: dict = {}
-    for j, s in enumerate(sets):
-        kind = int(s.get("ordinate_spec_data_type", 0))
-        if kind in by_kind:
-            raise RecordError(f"{path}: more than one UFF58 set of data type {kind}; export one "
-                              "force and one acceleration function per file.")
-        by_kind[kind] = s
-    missing = [n for k, n in ((_UFF_FORCE, "force (type 13)"), (_UFF_ACC, "acceleration "
-                                                                "(type 12)")) if k not in by_kind]
-    if missing:
-        raise RecordError(f"{path}: UFF58 function(s) {', '.join(missing)} missing. Export the "
-                          "force and the worktable acceleration as time functions.")
-    fs_set, acc_set = by_kind[_UFF_FORCE], by_kind[_UFF_ACC]
-    meta: dict = {}
-    for s in (fs_set, acc_set):
-        for field in ("id4", "id5"):
-            for item in str(s.get(field, "")).replace(";", ",").split(","):
-                if "=" in item:
-                    k, v = item.split("=", 1)
-                    meta[k.strip()] = _parse_value(v)
-    dt = float(fs_set["abscissa_inc"])
-    meta.setdefault("sample_rate_hz", 1.0 / dt)
-    _check_meta(path, meta)
-    force = np.asarray(fs_set["data"], float).real
-    acc = np.asarray(acc_set["data"], float).real
-    t = np.asarray(fs_set.get("x", np.arange(force.size) * dt), float)
-    if force.size != acc.size:
-        raise RecordError(f"{path}: force has {force.size} samples, acceleration {acc.size}; "
-                          "both functions must cover the same samples.")
-    return _finish(path, t, force, acc, meta, lambda i: f"{path}: sample {i}")
-
-
-def write_record_uff(path, record_or_arrays, meta: dict | None = None) -> Path:
-    """Write force and acceleration as two UFF58 time functions (metadata in id4)."""
-    import pyuff
-
-    t, force, acc, meta = _unpack(record_or_arrays, meta)
-    path = Path(path)
-    # Written beside the target and renamed into place, so an existing file is replaced
-    # only by a complete new one.
-    tmp = path.with_name(f".{path.name}.tmp")
-    if tmp.exists():
-        tmp.unlink()
-    # UFF id lines hold 80 characters: frequency/force/rate in id4, speed/ambient in id5.
-    id4 = "; ".join(f"{k}={meta[k]:.9g}" for k in REQUIRED_META[:3] if k in meta)
-    id5 = "; ".join(f"{k}={meta[k]:.9g}" for k in REQUIRED_META[3:] if k in meta)
-    uff = pyuff.UFF(str(tmp))
-    for kind, data, name in ((_UFF_FORCE, force, "force"), (_UFF_ACC, acc, "acceleration")):
-        uff.write_sets(uff58_set(t, data, kind, id1=f"bsfs exciter record: {name}", id4=id4,
-                                 id5=id5),
-                       mode="add")
-    os.replace(tmp, path)
-    return path
-
-
-def uff58_set(t, data, kind: int, *, id1: str = "", id4: str = "", id5: str = "") -> dict:
-    """A complete UFF58 time-function data set for pyuff (ASCII, real, double)."""
-    labels = {_UFF_FORCE: "N", _UFF_ACC: "m/s^2"}
-    return dict(
-        type=58, binary=0, id1=id1, id2="", id3="", id4=id4, id5=id5, func_type=1,
-        ver_num=0, load_case_id=0, rsp_ent_name="TABLE", rsp_node=1, rsp_dir=1,
-        ref_ent_name="EXCITER", ref_node=1, ref_dir=1, ord_data_type=4,
-        num_pts=int(np.asarray(data).size), abscissa_spacing=1, abscissa_min=float(t[0]),
-        abscissa_inc=float(t[1] - t[0]), z_axis_value=0.0, abscissa_spec_data_type=17,
-        abscissa_len_unit_exp=0, abscissa_force_unit_exp=0, abscissa_temp_unit_exp=0,
-        abscissa_axis_units_lab="s", ordinate_spec_data_type=int(kind),
-        ordinate_len_unit_exp=0, ordinate_force_unit_exp=0, ordinate_temp_unit_exp=0,
-        ordinate_axis_units_lab=labels.get(kind, "NONE"), orddenom_spec_data_type=0,
-        orddenom_len_unit_exp=0, orddenom_force_unit_exp=0, orddenom_temp_unit_exp=0,
-        orddenom_axis_units_lab="NONE", z_axis_spec_data_type=0, z_axis_len_unit_exp=0,
-        z_axis_force_unit_exp=0, z_axis_temp_unit_exp=0, z_axis_axis_units_lab="NONE",
-        data=np.asarray(data, float), x=np.asarray(t, float))
-
-
-# ----------------------------------------------------------------------------- writing
-
-
-def _unpack(record_or_arrays, meta):
+def unpack(record_or_arrays, meta):
+    """(t, force, acc, meta) of a `Record` or of a (t, force, acc) tuple plus `meta`."""
     if isinstance(record_or_arrays, Record):
         r = record_or_arrays
         return r.time, r.force, r.acceleration, dict(r.meta)
@@ -402,25 +362,12 @@ def _unpack(record_or_arrays, meta):
     return np.asarray(t), np.asarray(force), np.asarray(acc), dict(meta or {})
 
 
-def format_record_csv(t, force, acc, meta: dict, *, digits: int = 6) -> str:
-    """CSV text of a record: `# key = value` header, column line, samples."""
-    lines = []
-    for k, v in meta.items():
-        lines.append(f"# {k} = {v!r}" if isinstance(v, str) else f"# {k} = {v:.10g}")
-    lines.append(",".join(COLUMNS))
-    tdig = max(7, int(math.ceil(-math.log10(float(t[1] - t[0])))) + 3)
-    tt = np.char.mod(f"%.{tdig}f", np.asarray(t, float))
-    ff = np.char.mod(f"%.{digits}g", np.asarray(force, float))
-    aa = np.char.mod(f"%.{digits}g", np.asarray(acc, float))
-    rows = np.char.add(np.char.add(np.char.add(np.char.add(tt, ","), ff), ","), aa)
-    return "\n".join(lines) + "\n" + "\n".join(rows.tolist()) + "\n"
-
-
-def write_record_csv(path, record_or_arrays, meta: dict | None = None, *,
-                     digits: int = 6) -> Path:
-    """Write a record atomically (temp file + rename). `digits`: significant digits."""
-    t, force, acc, meta = _unpack(record_or_arrays, meta)
-    text = format_record_csv(t, force, acc, meta, digits=digits)
-    path = Path(path)
-    write_text_atomic(path, text)
-    return path
+def format_meta_value(v, digits: int = 10) -> str | None:
+    """Header text of a meta value (None: not writable, skipped)."""
+    if isinstance(v, str):
+        return repr(v)
+    if isinstance(v, bool):
+        return repr(str(v).lower())
+    if isinstance(v, (int, float, np.integer, np.floating)):
+        return f"{float(v):.{digits}g}"
+    return None

@@ -332,14 +332,95 @@ def test_frc_peak_gradient_at_5000n():
     assert lo - 1e-5 * abs(lo) <= ad.gradient[1] <= hi + 1e-5 * abs(hi)
 
 
+def _result(names, normalised, value=2.0):
+    from bsfs_jax.design import SensitivityResult
+
+    theta = np.ones(len(names))
+    grad = np.asarray(normalised, float) * value / theta
+    return SensitivityResult("m", "u", value, None, None, tuple(names), theta, grad,
+                             np.asarray(normalised, float), "test")
+
+
 def test_a_wrong_gradient_is_flagged_never_passed():
-    from types import SimpleNamespace
+    from bsfs_jax.design import compare_gradients, gradient_not_checked, largest_entries
 
-    from bsfs_jax.cli._design_cmd import _gradient_check
-
-    exact = SimpleNamespace(normalised=np.array([0.8, -0.3, 0.01]))
-    fd = SimpleNamespace(normalised=np.array([0.8, 0.3]))  # the sign of the second is wrong
-    check = _gradient_check(exact, ["a", "b", "c"], None, (["a", "b"], fd))
+    exact = _result(["a", "b", "c"], [0.8, -0.3, 1e-6])
+    assert largest_entries(exact) == ("a", "b")
+    wrong = _result(["a", "b"], [0.8, 0.3])  # the sign of the second is wrong
+    check = compare_gradients(exact, wrong)
     assert check["passed"] is False and "DISAGREES" in check["summary"]
-    good = SimpleNamespace(normalised=np.array([0.8, -0.3]))
-    assert _gradient_check(exact, ["a", "b", "c"], None, (["a", "b"], good))["passed"]
+    assert check["relative_difference"][1] == pytest.approx(2.0)
+    assert compare_gradients(exact, _result(["a", "b"], [0.8, -0.3 * (1 + 1e-4)]))["passed"]
+    # A negligible entry is compared absolutely (difference noise), a real one is not.
+    assert compare_gradients(exact, _result(["c"], [3e-6]))["passed"]
+    assert not compare_gradients(exact, _result(["c"], [0.01]))["passed"]
+    assert gradient_not_checked()["passed"] is None
+
+
+@jax.custom_jvp
+def _tripled_derivative(x):
+    return x
+
+
+@_tripled_derivative.defjvp
+def _tripled_jvp(primals, tangents):
+    return primals[0], 3.0 * tangents[0]
+
+
+@pytest.fixture
+def wrong_metric(monkeypatch):
+    """static_stiffness with a deliberately wrong (tripled) derivative, registered as a
+    metric so that the CLI offers it."""
+    from bsfs_jax.design import Metric
+    from bsfs_jax.design._metrics import static_stiffness
+
+    def wrong(params, op=None, settings=None, hint=None):
+        return _tripled_derivative(static_stiffness(params))
+
+    metric = Metric("wrong_stiffness", "stiffness, wrong derivative", "N/um", 1e-6, "max",
+                    False, False, "static stiffness with a tripled derivative", wrong)
+    monkeypatch.setitem(METRICS, metric.name, metric)
+    return metric.name
+
+
+def test_gradient_probe_catches_a_wrong_derivative(params, wrong_metric, tmp_path, capsys):
+    from bsfs_jax.cli import main
+    from bsfs_jax.design import check_gradient
+
+    names = ("nut.preload_n",)
+    good = check_gradient("static_stiffness", params, names)
+    assert good["passed"] and good["checked"] == list(names)
+    bad = check_gradient(wrong_metric, params, names)
+    assert bad["passed"] is False and bad["relative_difference"][0] == pytest.approx(2.0, 1e-3)
+    # `bsfs optimize` refuses to follow it: one line, exit 1, nothing written.
+    out = tmp_path / "opt"
+    assert main(["optimize", "--metric", wrong_metric, "--vary", "nut.preload_n",
+                 "--no-verify", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "DISAGREES with central differences" in err
+    assert not out.exists()
+    # `bsfs sensitivity` writes its outputs flagged, and exits 3.
+    assert main(["sensitivity", "--metric", wrong_metric, "--vary", "nut.preload_n",
+                 "--out", str(tmp_path / "sens")]) == 3
+    data = json.loads((tmp_path / "sens" / "sensitivity.json").read_text())
+    assert data["gradient_check"]["passed"] is False
+    assert "DISAGREES" in (tmp_path / "sens" / "sensitivity.md").read_text()
+
+
+def test_cli_optimize_records_the_gradient_check(tmp_path):
+    from bsfs_jax.cli import main
+
+    out = tmp_path / "opt"
+    assert main(["optimize", "--metric", "thermal_error", "--vary", "nut.preload_n",
+                 "--bounds", "nut.preload_n=500:2500", "--no-verify", "--out", str(out)]) == 0
+    check = json.loads((out / "optimize.json").read_text())["gradient_check"]
+    assert check["passed"] is True
+    for where in ("start", "optimum"):
+        assert check[where]["checked"] == ["nut.preload_n"] and check[where]["passed"]
+    assert check["optimum"]["value"] < check["start"]["value"]  # thermal error, minimised
+    assert "start: agrees with central differences" in (out / "optimize.md").read_text()
+    assert main(["optimize", "--metric", "thermal_error", "--vary", "nut.preload_n",
+                 "--bounds", "nut.preload_n=500:2500", "--no-verify", "--no-fd-probe",
+                 "--out", str(tmp_path / "o2")]) == 0
+    unchecked = json.loads((tmp_path / "o2" / "optimize.json").read_text())["gradient_check"]
+    assert unchecked["passed"] is None and "not checked" in unchecked["summary"]

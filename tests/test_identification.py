@@ -45,7 +45,7 @@ def cli_run(tmp_path_factory):
     from bsfs_jax.cli import main
 
     out = tmp_path_factory.mktemp("identify")
-    assert main(["identify", "--out", str(out), "--starts", "2", "--max-steps", "40"]) == 0
+    assert main(["identify", "--out", str(out), "--starts", "2"]) == 0
     return out, json.loads((out / "report.json").read_text())
 
 
@@ -141,32 +141,74 @@ def test_nonlinear_residual_gradient_matches_finite_differences():
     np.testing.assert_allclose(jac / scale, fd / scale, atol=2e-3)
 
 
-def test_transforms_round_trip_and_bounds(paper_problem):
+def test_transforms_round_trip_and_name_checks(paper_problem):
     pb = paper_problem
     theta = np.linspace(-1, 1, pb.n_params)
     np.testing.assert_allclose(pb.theta_of(pb.values(theta)), theta, rtol=1e-10, atol=1e-12)
-    huge = pb.values(np.full(pb.n_params, 50.0))
-    assert np.all(huge <= pb.prior_values * 20.0 * (1 + 1e-12))
+    # log-parameters stay positive for any theta; theta = 0 is the prior
+    assert np.all(pb.values(np.full(pb.n_params, -50.0)) > 0)
+    np.testing.assert_allclose(pb.values(np.zeros(pb.n_params)), pb.prior_values)
+    with pytest.raises(ValueError, match="must be positive"):
+        pb.theta_of(-pb.prior_values)
     with pytest.raises(ValueError, match="unknown parameter 'k_nut'"):
         idn.parse_fit("k_nut,c_b")
     with pytest.raises(ValueError, match="either 'expansion'"):
         idn.parse_fit("expansion,d_n")
+    with pytest.raises(ValueError, match="same joint stiffness"):
+        idn.parse_fit("nut_k,nut_preload")
+    assert idn.parse_priors("c_n=0.3", ("c_n", "c_b")) == {"c_n": 0.3, "c_b": 1.0}
+    for bad in ("c_x=1", "c_n=-1", "c_n=nan", "c_n=abc"):
+        with pytest.raises(ValueError, match="--prior"):
+            idn.parse_priors(bad, ("c_n",))
+
+
+def _sine_record(f, fs=10240.0, n=4096, name="rec"):
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(1)
+    force = 100 * np.sin(2 * np.pi * f * t) + rng.normal(0, 0.5, n)
+    acc = 5 * np.sin(2 * np.pi * f * t + 0.3) + rng.normal(0, 0.05, n)
+    meta = dict(frequency_hz=f, force_amplitude_n=100.0, sample_rate_hz=fs, speed_rpm=2000.0,
+                ambient_c=20.0)
+    return idn.Record(t, force, acc, f, 100.0, fs, 2000.0, 20.0, meta, name)
+
+
+def test_record_above_the_usable_band_is_refused_in_one_line():
+    data = [harmonic_analysis(_sine_record(4000.0))]
+    with pytest.raises(ValueError, match="above the usable band") as exc:
+        idn.Problem(data, bsfs_jax.preset())
+    assert "\n" not in str(exc.value) and "sample rate above" in str(exc.value)
+
+
+def test_one_record_cannot_carry_the_noise_check():
+    """One 2500 Hz record: 6 numbers for 7 parameters. The fit says the goodness of fit
+    cannot be checked, and nothing is claimed to 1e-14."""
+    path = idn.DATA_DIR / "stepped-sine" / "sine_2500hz_100n_2000rpm.csv"
+    res = idn.identify([path], bsfs_jax.preset(), profile=False)
+    u = res.uncertainty
+    assert res.fit.converged
+    assert not u.noise["checked"] and "cannot be checked" in u.noise["text"]
+    assert np.all(np.isfinite(u.ci95)) and np.all(u.ci95[:, 0] > 0)
+    assert not np.any(u.determined)
+    assert all(c["relative_std"] > 1e-4 for c in u.compliance.values())
 
 
 # ----------------------------------------------------------------------------- recovery
 
 
-def test_paper_test_identifies_only_the_series_compliance(cli_run, truth):
+def test_paper_test_converges_and_says_only_the_compliance_is_determined(cli_run, truth):
     out, report = cli_run
     for name in ("identified.toml", "report.json", "fit.png", "correlation.png"):
         assert (out / name).stat().st_size > 0
+    assert report["fit"]["converged"] and report["fit"]["remaining_step_sigma"] < 0.01
+    assert all(s["same_minimum"] for s in report["fit"]["starts"])
     for name, row in report["parameters"].items():
-        assert set(row) >= {"value", "std", "ci95", "unit"}
+        assert set(row) >= {"value", "std", "ci95", "identified", "unit", "status"}
+        assert not row["identified"] and row["status"] == "prior-dominated"
+        lo, hi = row["ci95"]  # finite, positive, in file units, around the value
+        assert 0 < lo < row["value"] < hi < 100 * row["value"]
     assert all(r["rms_residual_m_s2"] < 3 * r["noise_rms_m_s2"] for r in report["records"])
     # Residuals at the noise level: the measurement model is adequate.
-    assert 0.7 < report["fit"]["noise_scale"] < 1.5
-    sv = np.asarray(report["identifiability"]["scaled_singular_values"])
-    assert sv[1] < 1e-2 and sv[3] < 1e-4  # as the issue's linearised check predicts
+    assert report["noise"]["checked"] and 0.7 < report["noise"]["noise_scale"] < 1.5
     directions = report["identifiability"]["directions"]
     assert directions[0]["std"] < 1e-3  # series compliance: determined to < 0.1 %
     assert directions[1]["std"] > 100 * directions[0]["std"]
@@ -175,7 +217,28 @@ def test_paper_test_identifies_only_the_series_compliance(cli_run, truth):
     c_truth = float(np.real(bsfs_jax.linear_frf(truth, jnp.zeros(1))[0, 2])) * 1e9
     comp = report["series_compliance"]["2000"]
     assert abs(comp["compliance_nm_per_n"] - c_truth) < 3 * comp["std_nm_per_n"]
-    assert "compliance" in report["summary"]
+    summary = report["summary"]
+    assert "No single parameter is determined" in summary
+    # The compliance's uncertainty is printed once.
+    assert summary.count(f"{100 * comp['relative_std']:.2g} %") == 1
+    # identified.toml flags every prior-dominated value on its own line.
+    text = (out / "identified.toml").read_text()
+    assert text.count("# NOT DETERMINED by the data") == len(report["parameters"])
+
+
+def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_problem):
+    """Re-solve the held problem at a reported profile end: 2 x cost rose by 3.84."""
+    from identification._profile import held_cost
+
+    out, report = cli_run
+    row = report["parameters"]["screw_k"]
+    assert row["ci_method"] == "profile"
+    pb = paper_problem
+    res = idn.fit(pb, starts=1)
+    i = pb.names.index("screw_k")
+    for end in row["ci95"]:
+        _, c = held_cost(pb, res.theta, i, float(np.log(end / pb.prior_values[i])))
+        assert c - 2 * res.cost == pytest.approx(3.84, abs=0.05)
 
 
 def test_identified_toml_round_trips_to_simulate(cli_run, paper_data, tmp_path):
@@ -232,12 +295,14 @@ def test_synth_cli_writes_a_loadable_record(tmp_path, truth):
 
 @pytest.mark.slow
 def test_stepped_sine_recovers_everything_within_3_sigma():
-    res = idn.identify(idn.bundled_records("stepped-sine"), bsfs_jax.preset(), starts=1)
+    res = idn.identify(idn.bundled_records("stepped-sine"), bsfs_jax.preset(), starts=1,
+                       profile=False)
     u = res.uncertainty
+    assert res.fit.converged
     for i, name in enumerate(u.names):
-        z = (u.values[i] - TRUTH_VALUES[name]) / u.std[i]
+        z = np.log(u.values[i] / TRUTH_VALUES[name]) / u.scaled_std[i]
         assert abs(z) < 3.0, f"{name}: {u.values[i]:.4g} vs truth {TRUTH_VALUES[name]:.4g}"
-        assert u.scaled_std[i] < 0.1  # all identified
+        assert u.scaled_std[i] < 0.1 and u.determined[i]  # all determined by the data
     # The plan's prediction for this design matches the achieved standard errors.
     plan = idn.plan_from_records("bundled stepped sine", [d.record for d in res.data])
     _, predicted, _, _ = idn.fisher_std(plan, bsfs_jax.preset())
@@ -255,14 +320,14 @@ def test_monte_carlo_sigma_matches_scatter(truth):
     fit = ("nut_k", "bearing_k", "screw_k", "c_n")
     # Data drawn from the linear model itself: this checks the statistics (sigma vs
     # scatter), not the model.
-    pb = idn.Problem(data, truth, fit, model="linear")
+    pb = idn.Problem(data, truth, fit, model="linear", priors=None)
     clean = pb.model_harmonics(np.zeros(pb.n_params))
     groups0 = pb.groups
     rng = np.random.default_rng(7)
     thetas, stds = [], []
     for _ in range(16):
         g = groups0[0]
-        acc = np.stack([clean[i] for i in pb.order])
+        acc = np.stack(clean)
         scale = np.where(np.isfinite(np.asarray(g.lin_scale)), np.asarray(g.lin_scale), 0.0)
         noisy = acc + scale[..., 0] * rng.normal(size=acc.shape) \
             + 1j * scale[..., 1] * rng.normal(size=acc.shape)

@@ -11,7 +11,7 @@ from identification import (
     write_record_csv,
     write_record_uff,
 )
-from identification._records import format_record_csv
+from identification._csv import format_record_csv
 
 FS = 10240.0
 F0 = 120.0
@@ -71,7 +71,7 @@ def test_uff58_without_acceleration_is_refused(tmp_path):
 
     t, force, _ = _signals()
     path = tmp_path / "force_only.uff"
-    from identification._records import uff58_set
+    from identification._uff import uff58_set
 
     pyuff.UFF(str(path)).write_sets(uff58_set(t, force, 13, id4="frequency_hz=120"), mode="add")
     with pytest.raises(RecordError, match=r"force_only.uff.*acceleration \(type 12\) missing"):
@@ -189,3 +189,205 @@ def test_bundled_records_load():
         assert len(recs) == count
         assert all(r.periods >= 20 for r in recs)
         assert all(r.meta.get("synthetic") == "true" for r in recs)
+
+
+# ----------------------------------------------------------------------------- broadband
+
+
+def _chirp_signals(n=4096, lo=100.0, hi=2000.0):
+    t = np.arange(n) / FS
+    force = 50 * np.sin(2 * np.pi * (lo * t + 0.5 * (hi - lo) / t[-1] * t**2))
+    acc = 0.01 * np.roll(force, 3) + np.random.default_rng(1).normal(0, 0.01, n)
+    return t, force, acc
+
+
+CHIRP_META = dict(excitation="chirp", start_hz=100.0, stop_hz=2000.0, force_amplitude_n=50.0,
+                  sample_rate_hz=FS, speed_rpm=2000.0, ambient_c=20.0)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".uff"])
+def test_chirp_record_round_trip(tmp_path, suffix):
+    write = write_record_csv if suffix == ".csv" else write_record_uff
+    path = write(tmp_path / f"c{suffix}", _chirp_signals(), dict(CHIRP_META, seed=3.0))
+    rec = load_record(path)
+    assert rec.excitation == "chirp" and (rec.start_hz, rec.stop_hz) == (100.0, 2000.0)
+    assert rec.force_amplitude_n == 50.0 and np.isnan(rec.frequency_hz)
+    assert rec.meta["seed"] == 3.0 and "chirp 100-2000 Hz, 50 N" in rec.summary()
+
+
+def test_random_record_needs_rms_force(tmp_path):
+    meta = dict(excitation="random", force_amplitude_n=10.0, sample_rate_hz=FS,
+                speed_rpm=0.0, ambient_c=20.0)
+    path = _write(tmp_path, format_record_csv(*_chirp_signals(), meta))
+    with pytest.raises(RecordError, match=r"rec.csv: header key\(s\) force_rms_n missing"):
+        load_record(path)
+    meta = dict(meta, force_rms_n=10.0)
+    assert load_record(_write(tmp_path, format_record_csv(*_chirp_signals(), meta))).summary()
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(excitation="sweep"), r"'excitation = sweep' is not one of sine, chirp, random"),
+    (dict(stop_hz=None), r"header key\(s\) stop_hz missing"),
+    (dict(start_hz=2500.0, stop_hz=3000.0), r"only \d+ % of the force's power lies in the "
+                                            r"header's band 2500-3000 Hz"),
+    (dict(stop_hz=6000.0), r"stop_hz = 6000 is not below the Nyquist frequency"),
+    (dict(start_hz=2000.0, stop_hz=100.0), r"start_hz = 2000 must be below stop_hz = 100"),
+])
+def test_bad_chirp_header(tmp_path, change, message):
+    meta = {k: v for k, v in dict(CHIRP_META, **change).items() if v is not None}
+    path = _write(tmp_path, format_record_csv(*_chirp_signals(), meta))
+    with pytest.raises(RecordError, match=message):
+        load_record(path)
+
+
+def test_tdms_is_refused_in_one_line(tmp_path):
+    path = _write(tmp_path, "x", name="rec.tdms")
+    with pytest.raises(RecordError, match=r"rec.tdms: TDMS is not read.*Export the channels"):
+        load_record(path)
+
+
+# ----------------------------------------------------------------------------- FRF files
+
+
+def _frf(n=50, coherence=True):
+    from identification import FrfRecord
+
+    f = np.linspace(100.0, 2000.0, n)
+    h = 1.0 / (1.0 - (f / 1100.0) ** 2 + 0.02j * f / 1100.0) * (f / 1100.0) ** 2
+    std = np.stack([0.01 + 0.001 * np.arange(n), 0.02 + 0.001 * np.arange(n)], axis=1)
+    coh = np.linspace(0.6, 0.99, n) if coherence else None
+    meta = {"force_level": "peak", "note": "bench test"}
+    return FrfRecord(f, h, std**2, coh, 4, 1500.0, 21.5, meta, "bench.csv", "hammer", 250.0)
+
+
+def _same_frf(a, b, rtol=1e-10):
+    np.testing.assert_allclose(b.frequency_hz, a.frequency_hz, rtol=rtol)
+    np.testing.assert_allclose(b.accelerance, a.accelerance, rtol=rtol)
+    np.testing.assert_allclose(b.variance, a.variance, rtol=rtol)
+    assert (b.excitation, b.n_averages, b.speed_rpm, b.ambient_c, b.force_amplitude_n) == (
+        a.excitation, a.n_averages, a.speed_rpm, a.ambient_c, a.force_amplitude_n)
+
+
+@pytest.mark.parametrize("coherence", [True, False])
+def test_frf_csv_round_trip(tmp_path, coherence):
+    from identification import FrfRecord, write_frf_csv
+
+    frf = _frf(coherence=coherence)
+    back = load_record(write_frf_csv(tmp_path / "f.csv", frf))
+    assert isinstance(back, FrfRecord) and back.meta["note"] == "bench test"
+    _same_frf(frf, back)
+    assert (back.coherence is None) == (not coherence)
+    assert "FRF (hammer, 250 N), 50 lines 100-2000 Hz, 4 average(s)" in back.summary()
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_frf_uff_round_trip(tmp_path, binary):
+    from identification import write_frf_uff
+
+    frf = _frf()
+    back = load_record(write_frf_uff(tmp_path / "f.uff", frf, binary=binary))
+    _same_frf(frf, back, rtol=1e-10 if binary else 1e-5)  # ASCII: 6-digit abscissa
+    np.testing.assert_allclose(back.coherence, frf.coherence, rtol=1e-10 if binary else 1e-5)
+
+
+def _frf_csv(rows=None, meta=None, columns="frequency_hz,re,im,coherence"):
+    meta = {"kind": "frf", "speed_rpm": 0.0, "ambient_c": 20.0, "n_averages": 10.0} \
+        if meta is None else meta
+    rows = rows or [(100.0 + 10 * i, 1.0 + 0.1 * i, -0.5, 0.9) for i in range(10)]
+    head = [f"# {k} = {v}" for k, v in meta.items()]
+    return "\n".join([*head, columns, *(",".join(str(x) for x in r) for r in rows)]) + "\n"
+
+
+def test_frf_variance_from_coherence(tmp_path):
+    from identification import frf_variance
+
+    frf = load_record(_write(tmp_path, _frf_csv(), name="f.csv"))
+    assert frf.excitation == "frf" and frf.n_averages == 10
+    np.testing.assert_allclose(frf.variance, frf_variance(frf.accelerance, 0.9, 10))
+    assert frf.force_amplitude_n is None
+
+
+def _bad_rows(i, value, col=0):
+    rows = [[100.0 + 10 * j, 1.0, -0.5, 0.9] for j in range(10)]
+    rows[i][col] = value
+    return rows
+
+
+@pytest.mark.parametrize("text, message", [
+    (_frf_csv(columns="frequency_hz,re,coherence", rows=[(100, 1, 0.9), (110, 1, 0.9)]),
+     r"f.csv:5: missing column\(s\) 'im'"),
+    (_frf_csv(columns="frequency_hz,re,im,std_re", rows=[(100, 1, 0, 1), (110, 1, 0, 1)]),
+     r"f.csv:5: give both std_re and std_im"),
+    (_frf_csv(columns="frequency_hz,re,im", rows=[(100, 1, 0), (110, 1, 0)]),
+     r"f.csv: the FRF's uncertainty is missing. Add the standard errors \(std_re, std_im\), "
+     r"or the coherence and the number of averages"),
+    (_frf_csv(meta={"kind": "frf", "speed_rpm": 0.0, "ambient_c": 20.0}),
+     r"uncertainty is missing"),
+    (_frf_csv(meta={"kind": "frf", "ambient_c": 20.0, "n_averages": 4}),
+     r"f.csv: header key\(s\) speed_rpm missing"),
+    (_frf_csv(rows=_bad_rows(4, 125.0)), r"f.csv:10: frequency_hz = 125 is below the "
+                                         r"previous line's 130.*increase strictly: sort"),
+    (_frf_csv(rows=_bad_rows(3, 120.0)), r"f.csv:9: frequency_hz = 120 repeats the previous "
+                                         r"line's 120"),
+    (_frf_csv(rows=_bad_rows(5, "nan", col=2)), r"f.csv:11: re/im is not finite \(1 such "
+                                                 r"line\(s\)\)"),
+    (_frf_csv(rows=_bad_rows(0, 0.0)), r"f.csv:6: frequency_hz = 0 is not positive"),
+    (_frf_csv(rows=_bad_rows(0, -10.0)), r"f.csv:6: frequency_hz = -10 is not positive"),
+    (_frf_csv(rows=_bad_rows(2, 1.5, col=3)), r"f.csv:8: coherence = 1.5 is not in \(0, 1\]"),
+    (_frf_csv(rows=_bad_rows(2, "x", col=1)), r"f.csv:8: 'x' is not a number"),
+    (_frf_csv(meta={"kind": "frf", "excitation": "shaker", "speed_rpm": 0.0,
+                    "ambient_c": 20.0}), r"'excitation = shaker' is not one of chirp, random, "
+                                         r"hammer, frf"),
+])
+def test_bad_frf_csv(tmp_path, text, message):
+    path = _write(tmp_path, text, name="f.csv")
+    with pytest.raises(RecordError, match=message):
+        load_record(path)
+
+
+def _uff_frf(path, **change):
+    import pyuff
+
+    from identification._uff import uff58_set
+
+    f = np.linspace(100.0, 1000.0, 10)
+    s = uff58_set(f, (1.0 + 0.5j) * np.ones(10), 12, id4="speed_rpm=0; ambient_c=20",
+                  id5="n_averages=5; excitation=hammer")
+    s.update(func_type=4, ord_data_type=6, abscissa_spacing=0, abscissa_spec_data_type=18,
+             orddenom_spec_data_type=13)
+    s.update(change)
+    coh = dict(uff58_set(f, np.full(10, 0.95), 0), func_type=6, abscissa_spacing=0,
+               abscissa_spec_data_type=18, x=s["x"])
+    pyuff.UFF(str(path)).write_sets([s, coh], mode="add")
+    return path
+
+
+def test_foreign_uff_frf_loads(tmp_path):
+    from identification import frf_variance
+
+    frf = load_record(_uff_frf(tmp_path / "h.uff"))
+    assert frf.excitation == "hammer" and frf.n_averages == 5 and frf.frequency_hz.size == 10
+    np.testing.assert_allclose(frf.variance, frf_variance(frf.accelerance, 0.95, 5))
+    # a mobility (velocity / force) is converted to accelerance: times i w
+    mob = load_record(_uff_frf(tmp_path / "m.uff", ordinate_spec_data_type=11))
+    np.testing.assert_allclose(mob.accelerance, 2j * np.pi * mob.frequency_hz * (1 + 0.5j))
+    assert mob.meta["converted_from"] == "mobility"
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(func_type=2), r"h.uff: UFF58 set 1 has function type 2 \(auto spectrum\)"),
+    (dict(ordinate_spec_data_type=2), r"UFF58 set 1 \(FRF\): ordinate data type 2"),
+    (dict(orddenom_spec_data_type=12), r"ordinate denominator data type 12"),
+    (dict(abscissa_spec_data_type=17), r"abscissa data type 17.*frequency in Hz"),
+    (dict(ord_data_type=4, data=np.ones(10)), r"the FRF data are real"),
+    (dict(id4="ambient_c=20"), r"h.uff: header key\(s\) speed_rpm missing. Add lines like "
+                               r"'# speed_rpm = ...' to an id line"),
+    (dict(x=np.r_[100.0, 100.0, np.linspace(200, 1000, 8)]),
+     r"h.uff: UFF58 set 1 \(FRF\), line 1 \(f = 100 Hz\): frequency_hz = 100 repeats"),
+    (dict(x=np.r_[0.0, np.linspace(200, 1000, 9)]), r"line 0 \(f = 0 Hz\): frequency_hz = 0 "
+                                                    r"is not positive"),
+])
+def test_bad_uff_frf(tmp_path, change, message):
+    path = _uff_frf(tmp_path / "h.uff", **change)
+    with pytest.raises(RecordError, match=message):
+        load_record(path)

@@ -26,8 +26,18 @@ _COMMAND_MODULES = [
 _RESUMABLE = ("sweep", "map", "reproduce")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its error (usage + one line) kept to one line whatever the user
+    typed: control characters in the message are escaped, long values cut."""
+
+    def error(self, message):
+        from ..params import one_line
+
+        super().error(one_line(message, 400))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="bsfs",
         description="Simulate, analyse and identify the nonlinear vibration of a ball screw "
         "feed system under thermal deformation (Yang et al. 2022 model, JAX).",
@@ -79,13 +89,13 @@ def main(argv=None) -> int:
         return 2
     setup_jax()
     _one_line_warnings(args.command)
-    from ..params import ParameterError
+    from ..params import ParameterError, one_line
     from ..solvers import SolverError
 
     try:
         return int(args.func(args) or 0)
     except (CLIError, ParameterError, SolverError, FileExistsError, FileNotFoundError) as exc:
-        print(f"bsfs {args.command}: error: {exc}", file=sys.stderr)
+        print(f"bsfs {args.command}: error: {one_line(exc, 2000)}", file=sys.stderr)
         return 1
     except BrokenPipeError:  # e.g. `bsfs params | head`
         return 0
@@ -97,7 +107,8 @@ def main(argv=None) -> int:
     except Exception as exc:  # noqa: BLE001 - the safety net, not the fix: one line + a log
         log = _write_crash_log(args)
         print(f"bsfs {args.command}: internal error: {type(exc).__name__}: "
-              f"{str(exc).splitlines()[0] if str(exc) else ''} (the traceback is in {log}; "
+              f"{one_line(str(exc).splitlines()[0], 300) if str(exc) else ''} (the traceback "
+              f"is in {log}; "
               "please report it with the command line)", file=sys.stderr)
         return 3
 

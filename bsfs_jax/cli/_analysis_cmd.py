@@ -1,19 +1,28 @@
 """`bsfs sweep`: batched, resumable sweeps with bifurcation diagram, FRC and waterfall."""
 
+import argparse
+
 import numpy as np
 
 from ._common import (
     CLIError,
     add_params_args,
+    count,
     finite_float,
     load_params_from_args,
     out_dir,
+    positive_float,
     progress_enabled,
     save_figure,
+    tolerance,
     validate_sweep_values,
     warn_implausible_excitation,
     write_json,
 )
+
+#: Most points of one sweep, and most samples (points x periods x samples per period).
+MAX_POINTS = 10**5
+MAX_SAMPLES = 10**9
 
 
 def register(sub) -> None:
@@ -34,7 +43,8 @@ def register(sub) -> None:
                    "bearing.contact_angle_deg, nut.preload_n (file units)")
     p.add_argument("--start", type=finite_float, required=True, help="first value")
     p.add_argument("--stop", type=finite_float, required=True, help="last value")
-    p.add_argument("--num", type=int, required=True, help="number of values (evenly spaced)")
+    p.add_argument("--num", type=count(1, MAX_POINTS), required=True,
+                   help="number of values (evenly spaced)")
     p.add_argument("--frequency", type=finite_float, help="excitation frequency [Hz] (fixed)")
     p.add_argument("--force", type=finite_float, default=5000.0,
                    help="excitation amplitude [N] on the nut (default 5000)")
@@ -46,9 +56,9 @@ def register(sub) -> None:
                    help="transient periods discarded at cold starts: 'auto' (default: three "
                    "time constants of the slowest linear mode per point when verifying, "
                    "else 200) or a number")
-    p.add_argument("--continued-transient", type=int, default=20,
+    p.add_argument("--continued-transient", type=count(1, 10**7), default=20,
                    help="transient periods of continued points (default 20)")
-    p.add_argument("--periods", type=int, default=32,
+    p.add_argument("--periods", type=count(1, 10**5), default=32,
                    help="recorded periods = stroboscopic samples - 1 (default 32; points "
                    "without a periodic orbit are continued in blocks by the verifier)")
     p.add_argument("--no-verify", action="store_true",
@@ -59,20 +69,23 @@ def register(sub) -> None:
                    "subharmonics beside the forced line)")
     p.add_argument("--no-folds", action="store_true",
                    help="continued mode: do not locate the folds behind the jumps")
-    p.add_argument("--samples-per-period", type=int, default=32)
+    p.add_argument("--samples-per-period", type=count(8, 10**4), default=32,
+                   help="samples per recorded period (32)")
     p.add_argument("--lyapunov", action="store_true",
                    help="also integrate the tangent dynamics over every recorded record "
                    "(the verifier computes exponents with confidence intervals where it "
                    "needs them anyway)")
-    p.add_argument("--rtol", type=finite_float, default=1e-8)
-    p.add_argument("--atol", type=finite_float, default=1e-12)
-    p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--rtol", type=tolerance, default=1e-8)
+    p.add_argument("--atol", type=positive_float, default=1e-12)
+    p.add_argument("--max-steps", type=count(1, 10**10), default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"),
                    help="integrator: dopri5-fused (default, fast forward-only loop) or a "
                    "diffrax solver: tsit5, dopri5, dopri8, kvaerno5")
-    p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep (vmap)")
-    p.add_argument("--chunk", type=int, default=32, help="points per checkpoint chunk")
+    p.add_argument("--batch", type=count(0, 10**4), default=8,
+                   help="points integrated in lockstep (vmap; 0: the whole chunk)")
+    p.add_argument("--chunk", type=count(1, 10**5), default=32,
+                   help="points per checkpoint chunk")
     p.add_argument("--shard", action="store_true",
                    help="shard cold-mode chunks over all JAX devices")
     p.add_argument("--no-progress", action="store_true")
@@ -85,21 +98,29 @@ def run(args) -> int:
     from ..plotting import plot_bifurcation, plot_frc, plot_waterfall
     from ..solvers import SolverSettings
 
-    if args.num < 1:
-        raise CLIError(f"--num must be >= 1, got {args.num}")
     if args.param == "frequency_hz" and min(args.start, args.stop) <= 0:
         raise CLIError(f"frequencies must be positive, got --start {args.start} "
                        f"--stop {args.stop}")
+    if args.param == "force_n" and min(args.start, args.stop) < 0:
+        raise CLIError(f"force amplitudes must be >= 0, got --start {args.start} "
+                       f"--stop {args.stop}")
     if args.param != "frequency_hz" and args.frequency is None:
         raise CLIError(f"sweeping {args.param} needs a fixed --frequency HZ")
+    if args.frequency is not None and not args.frequency > 0:
+        raise CLIError(f"--frequency must be positive, got {args.frequency}")
+    if not args.force >= 0:
+        raise CLIError(f"--force must be >= 0, got {args.force}")
     if args.transient != "auto":
         try:
-            transient = int(args.transient)
-        except ValueError:
-            raise CLIError(f"--transient must be 'auto' or a whole number of periods, got "
-                           f"{args.transient!r}") from None
+            transient = count(1, 10**7)(args.transient)
+        except argparse.ArgumentTypeError as exc:
+            raise CLIError(f"--transient must be 'auto' or a number of periods: {exc}"
+                           ) from None
+    if args.num * args.periods * args.samples_per_period > MAX_SAMPLES:
+        raise CLIError(f"--num {args.num} x --periods {args.periods} x --samples-per-period "
+                       f"{args.samples_per_period} samples exceed {MAX_SAMPLES:.0e}: the "
+                       "spectra alone would not fit in memory; lower one of them")
     params = load_params_from_args(args)
-    folder = out_dir(args.out)
     verify = None if args.no_verify else VerifySettings()
     try:
         problem = bsfs_problem(params, args.param, frequency_hz=args.frequency,
@@ -118,6 +139,7 @@ def run(args) -> int:
     warn_implausible_excitation(
         forces=values if args.param == "force_n" else [args.force],
         frequencies=values if args.param == "frequency_hz" else [args.frequency])
+    folder = out_dir(args.out)  # only now: a refused command line leaves no folder behind
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)

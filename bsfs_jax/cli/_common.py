@@ -44,29 +44,36 @@ def add_params_args(parser) -> None:
 
 
 def load_params_from_args(args):
-    from ..params import load_params, preset
+    """The parameters named by --params/--preset, with every --set applied; each --set is
+    checked as a file's value is (a number in range, true/false for a switch)."""
+    from ..params import check_value, load_params, one_line, preset, validate
 
-    params = load_params(args.params) if getattr(args, "params", None) else preset(
-        getattr(args, "preset", None) or "default")
+    if getattr(args, "params", None) is not None:
+        params = load_params(args.params)
+    else:  # an empty --preset is refused like any unknown name, never taken as the default
+        name = getattr(args, "preset", None)
+        params = preset("default" if name is None else name)
     for item in getattr(args, "set", []) or []:
         if "=" not in item:
-            raise CLIError(f"--set expects SECTION.KEY=VALUE, got '{item}'")
-        name, value = item.split("=", 1)
-        value = value.strip()
-        if value.lower() in ("true", "false"):
-            params = params.replace(name.strip(), value.lower() == "true")
-            continue
-        try:
-            number = float(value)
-        except ValueError:
-            raise CLIError(f"--set {name}: '{value}' is not a number") from None
-        params = params.replace(name.strip(), number)
-    from ..params import validate
-
+            raise CLIError(f"--set expects SECTION.KEY=VALUE, got '{one_line(item)}'")
+        name, text = (part.strip() for part in item.split("=", 1))
+        if text.lower() in ("true", "false"):
+            value = text.lower() == "true"
+        else:
+            try:
+                value = float(text)
+            except ValueError:
+                raise CLIError(f"--set {one_line(name)}: '{one_line(text)}' is not a number"
+                               ) from None
+        check_value(name, value, source="--set")
+        params = params.replace(name, value)
     return validate(params, source="--set")
 
 
-def out_dir(path) -> Path:
+def out_dir(path, *, create: bool = True) -> Path:
+    """The output folder `path`, created (with its parents) unless `create` is False; a
+    CLIError when it, or a parent, is a file or cannot be created. Call it with
+    `create=False` before a long computation to fail early without leaving a folder."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise CLIError(f"--out '{path}' exists and is not a folder")
@@ -76,6 +83,8 @@ def out_dir(path) -> Path:
                 raise CLIError(f"--out '{path}': '{parent}' is a file, not a folder; choose "
                                "another --out")
             break
+    if not create:
+        return path
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -95,6 +104,46 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got '{text}'")
     return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    import argparse
+
+    value = finite_float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got '{text}'")
+    return value
+
+
+def tolerance(text: str) -> float:
+    """argparse type: a relative tolerance, 0 < value < 1."""
+    import argparse
+
+    value = finite_float(text)
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must lie between 0 and 1 (exclusive), got '{text}'")
+    return value
+
+
+def count(low: int, high: int):
+    """argparse type: a whole number in [low, high] (the upper end keeps an absurd value
+    from allocating or running for days before anything is written)."""
+    import argparse
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+        if not low <= value <= high:
+            shown = text if len(text) <= 20 else text[:17] + "..."
+            raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high:,}, "
+                                             f"got {shown}")
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
 
 
 def write_json(path, data) -> None:
@@ -144,8 +193,9 @@ def warn_implausible_excitation(*, forces=(), frequencies=()) -> None:
 
 def validate_sweep_values(params, key: str, values, flag: str):
     """Refuse up front a sweep or map range of a parameter key that crosses an invalid
-    value (every value is validated before anything is computed)."""
+    value: every value is validated (in one vectorised pass) before anything is computed."""
+    import numpy as np
+
     from ..params import validate
 
-    for v in values:
-        validate(params.replace(key, float(v)), source=f"{flag} {key} = {float(v):g}")
+    validate(params.replace(key, np.asarray(values, dtype=float)), source=f"{flag} {key}")

@@ -8,11 +8,14 @@ import numpy as np
 from ._common import (
     CLIError,
     add_params_args,
+    count,
     finite_float,
     load_params_from_args,
     out_dir,
+    positive_float,
     progress_enabled,
     save_figure,
+    tolerance,
     write_bytes_atomic,
     write_json,
 )
@@ -38,7 +41,7 @@ def register(sub) -> None:
     p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
                    help="orbit method: harmonic balance (hb), shooting, or auto (default: "
                    "hb where its error estimate passes along the whole branch, else shooting)")
-    p.add_argument("--harmonics", type=int, default=8,
+    p.add_argument("--harmonics", type=count(1, 1024), default=8,
                    help="starting harmonic count for hb; doubled where the error estimate "
                    "exceeds --hb-tol (8)")
     p.add_argument("--hb-tol", type=finite_float, default=1e-5,
@@ -48,14 +51,16 @@ def register(sub) -> None:
                    help="skip the cross-check of the folds with the other method")
     p.add_argument("--ds", type=finite_float, default=0.1,
                    help="initial arclength step in scaled units (0.1; adapted)")
-    p.add_argument("--ds-max", type=finite_float, default=None, help="largest step (10 ds)")
-    p.add_argument("--max-points", type=int, default=400, help="most branch points (400)")
+    p.add_argument("--ds-max", type=positive_float, default=None,
+                   help="largest step (10 ds)")
+    p.add_argument("--max-points", type=count(2, 10**6), default=400,
+                   help="most branch points (400)")
     p.add_argument("--dof", choices=sorted(_DOFS), default="nut",
                    help="mass whose amplitude is plotted and tabulated (nut)")
-    p.add_argument("--transient-periods", type=int, default=150,
+    p.add_argument("--transient-periods", type=count(0, 10**7), default=150,
                    help="periods simulated from rest at --start for the first guess (150)")
-    p.add_argument("--rtol", type=finite_float, default=1e-11, help="ODE rtol (1e-11)")
-    p.add_argument("--atol", type=finite_float, default=1e-13,
+    p.add_argument("--rtol", type=tolerance, default=1e-11, help="ODE rtol (1e-11)")
+    p.add_argument("--atol", type=positive_float, default=1e-13,
                    help="ODE atol, on states scaled to order one (1e-13)")
     p.add_argument("--solver", default="dopri8",
                    choices=("dopri8", "dopri5", "tsit5", "kvaerno5"),
@@ -115,6 +120,8 @@ def run_continue(args) -> int:
         raise CLIError(f"--force must be positive, got {args.force}")
     if not args.ds > 0 or args.max_points < 2 or args.transient_periods < 0:
         raise CLIError("need --ds > 0, --max-points >= 2 and --transient-periods >= 0")
+    if args.ds_max is not None and not args.ds_max >= args.ds:
+        raise CLIError(f"--ds-max {args.ds_max:g} must be at least --ds {args.ds:g}")
     if not (args.harmonics >= 1 and args.hb_tol > 0):
         raise CLIError("need --harmonics >= 1 and --hb-tol > 0")
     params = load_params_from_args(args)

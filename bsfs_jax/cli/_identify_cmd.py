@@ -16,23 +16,39 @@ from ._common import (
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "identify", help="fit stiffness, damping and thermal offsets to exciter records",
-        description="Fit model parameters to exciter records (force + worktable acceleration) "
-        "with Levenberg-Marquardt through JAX gradients; writes identified.toml, report.json, "
-        "fit.png and correlation.png. With no records it runs on the bundled synthetic data.")
+        "identify", help="fit preloads, stiffness, damping and thermal offsets to exciter "
+        "records",
+        description="Fit model parameters to exciter records (stepped sines: force + "
+        "worktable acceleration; chirp/random records; FRFs from UFF58 files) with "
+        "Levenberg-Marquardt through JAX gradients, maximum a posteriori with stated priors "
+        "by default. Says for each parameter whether the data determine it. Writes "
+        "identified.toml, report.json, fit.png and correlation.png. With no records it runs "
+        "on a bundled synthetic data set.")
     p.add_argument("records", nargs="*", metavar="RECORD",
-                   help="record files (.csv with '# key = value' header, or UFF58 .uff)")
-    p.add_argument("--data", choices=["paper-test", "stepped-sine"], default="paper-test",
+                   help="record files (.csv with '# key = value' header, UFF58 .uff: time "
+                   "records or FRFs)")
+    p.add_argument("--data", choices=["paper-test", "stepped-sine", "preload-loss"],
+                   default="paper-test",
                    help="bundled data set used when no RECORD is given (paper-test)")
     add_params_args(p)
     p.add_argument("--fit", metavar="NAME,...", default=None,
                    help="parameters to fit (default nut_k,bearing_k,screw_k,c_b,c_s,c_n,"
-                   "expansion; also d_n,d_b per speed)")
+                   "expansion; also nut_preload,bearing_preload and d_n,d_b per speed)")
+    p.add_argument("--prior", metavar="NAME=SIGMA,...", default=None,
+                   help="prior standard deviations of the scaled parameters (log-value, or "
+                   "um for offsets), replacing the defaults (0.5 stiffness/preload, 1.0 "
+                   "damping, 0.3 expansion, 1 um offsets)")
+    p.add_argument("--no-priors", action="store_true",
+                   help="maximum likelihood: no priors (undetermined parameters are then "
+                   "reported without an interval)")
+    p.add_argument("--no-profile", action="store_true",
+                   help="skip profile-likelihood intervals where the linearised ones are "
+                   "doubtful")
     p.add_argument("--model", choices=["auto", "linear", "nonlinear"], default="auto",
-                   help="steady-state model per record (auto: linear FRF at small "
+                   help="steady-state model per sine record (auto: linear FRF at small "
                    "amplitude, shooting otherwise)")
     p.add_argument("--starts", type=int, default=3, help="multi-start count (3)")
-    p.add_argument("--max-steps", type=int, default=60, help="LM iterations per start (60)")
+    p.add_argument("--max-steps", type=int, default=100, help="LM iterations per start (100)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
@@ -51,23 +67,31 @@ def register(sub) -> None:
 
 
 def _fit_names(text):
-    from identification._fit import parse_fit
+    import identification as idn
 
     try:
-        return parse_fit(text)
+        return idn.parse_fit(text)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
 
 
 def run_identify(args) -> int:
     import identification as idn
-    from identification import _report
-    from identification._records import RecordError
 
     from ..plotting import correlation_figure, fit_figure
 
     prior = load_params_from_args(args)
     names = _fit_names(args.fit)
+    for flag in ("starts", "max_steps"):
+        if getattr(args, flag) < 1:
+            raise CLIError(f"--{flag.replace('_', '-')} must be at least 1, got "
+                           f"{getattr(args, flag)}")
+    if args.no_priors and args.prior:
+        raise CLIError("--prior and --no-priors contradict each other; give one")
+    try:
+        priors = None if args.no_priors else idn.parse_priors(args.prior, names)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
     records = args.records or [str(p) for p in idn.bundled_records(args.data)]
     if not args.records:
         print(f"bsfs identify: no records named; using the bundled SYNTHETIC data set "
@@ -76,26 +100,42 @@ def run_identify(args) -> int:
     t0 = time.perf_counter()
     try:
         res = idn.identify(records, prior, names, model=args.model, starts=args.starts,
-                           seed=args.seed, max_steps=args.max_steps)
-    except (RecordError, ValueError) as exc:
+                           seed=args.seed, max_steps=args.max_steps, priors=priors,
+                           profile=not args.no_profile)
+    except (idn.RecordError, ValueError) as exc:
         raise CLIError(str(exc)) from None
-    report = _report.report_dict(res)
-    paths = _report.write_identified(res, out)
+    report = idn.report_dict(res)
+    paths = idn.write_identified(res, out)
     write_json(out / "report.json", report)
-    fig = fit_figure([d.record for d in res.data], res.model_harmonics(),
-                     [d.frequency_hz for d in res.data], res.problem.models)
-    save_figure(fig, out / "fit.png")
+    written = [*paths, out / "report.json"]
+    sines = [(d, m, c) for d, m, c in zip(res.data, res.problem.models, res.model_harmonics())
+             if m != "frf"]
+    if sines:
+        fig = fit_figure([d.record for d, _, _ in sines], [c for _, _, c in sines],
+                         [d.frequency_hz for d, _, _ in sines], [m for _, m, _ in sines])
+        save_figure(fig, out / "fit.png")
+        written.append(out / "fit.png")
+    frfs = [(d, c) for d, m, c in zip(res.data, res.problem.models, res.model_harmonics())
+            if m == "frf"]
+    if frfs:
+        from ..plotting import frf_fit_figure
+
+        fig = frf_fit_figure([d.frequency_hz for d, _ in frfs], [d.accelerance for d, _ in frfs],
+                             [c for _, c in frfs], [d.variance for d, _ in frfs],
+                             [d.name for d, _ in frfs])
+        save_figure(fig, out / "frf_fit.png")
+        written.append(out / "frf_fit.png")
     u = res.uncertainty
     fig2 = correlation_figure(res.problem.names, u.correlation, u.singular_values,
                               u.direction_std, 0.1)
     save_figure(fig2, out / "correlation.png")
+    written.append(out / "correlation.png")
     import matplotlib.pyplot as plt
 
     plt.close("all")
     print(report["summary"])
-    print(f"\nwrote {', '.join(str(p) for p in paths)}, {out / 'report.json'}, "
-          f"{out / 'fit.png'}, {out / 'correlation.png'} ({time.perf_counter() - t0:.1f} s)")
-    return 0
+    print(f"\nwrote {', '.join(str(p) for p in written)} ({time.perf_counter() - t0:.1f} s)")
+    return 0 if res.fit.converged else 4
 
 
 def run_plan(args) -> int:

@@ -5,12 +5,14 @@ import numpy as np
 from ._common import (
     CLIError,
     add_params_args,
+    count,
     finite_float,
     load_params_from_args,
     out_dir,
+    positive_float,
     progress_enabled,
     save_figure,
-    validate_sweep_values,
+    tolerance,
     warn_implausible_excitation,
     write_json,
 )
@@ -21,6 +23,13 @@ _WORDS = {FREQUENCY: "Excitation frequency", FORCE: "Force amplitude",
           DAMPING_SCALE: "Damping scale (factor on the three dampers)"}
 _SUFFIXES = ("_n_s_per_m", "_m_per_n23", "_n_per_um", "_w_per_m2k", "_w_per_k", "_mm2_s",
              "_per_k", "_gpa", "_rpm", "_deg", "_mm", "_um", "_kg", "_hz", "_n", "_c", "_w")
+
+
+#: Most values per axis, points of one atlas, and samples (points x periods x samples
+#: per period).
+MAX_NUM = 10**4
+MAX_POINTS = 10**6
+MAX_SAMPLES = 10**9
 
 
 def register(sub) -> None:
@@ -54,34 +63,37 @@ def register(sub) -> None:
     p.add_argument("--force", type=finite_float, default=5000.0,
                    help="excitation amplitude [N] when neither axis is force_n (5000)")
     add_params_args(p)
-    p.add_argument("--transient", type=int, default=200,
+    p.add_argument("--transient", type=count(1, 10**7), default=200,
                    help="transient periods where no linear decay rate is known (default "
                    "200; otherwise each point runs three time constants of the slowest "
                    "linear mode)")
-    p.add_argument("--periods", type=int, default=32, help="recorded periods (default 32)")
-    p.add_argument("--samples-per-period", type=int, default=32)
+    p.add_argument("--periods", type=count(1, 10**5), default=32,
+                   help="recorded periods (default 32)")
+    p.add_argument("--samples-per-period", type=count(8, 10**4), default=32)
     p.add_argument("--lyapunov", action="store_true",
                    help="also integrate the tangent dynamics over every record (the "
                    "verification computes its own exponent where it needs one)")
-    p.add_argument("--rtol", type=finite_float, default=1e-8)
-    p.add_argument("--atol", type=finite_float, default=1e-12)
-    p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--rtol", type=tolerance, default=1e-8)
+    p.add_argument("--atol", type=positive_float, default=1e-12)
+    p.add_argument("--max-steps", type=count(1, 10**10), default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"))
-    p.add_argument("--batch", type=int, default=8, help="points integrated in lockstep")
-    p.add_argument("--chunk", type=int, default=32, help="points per checkpoint chunk")
+    p.add_argument("--batch", type=count(0, 10**4), default=8,
+                   help="points integrated in lockstep (0: the whole chunk)")
+    p.add_argument("--chunk", type=count(1, 10**5), default=32,
+                   help="points per checkpoint chunk")
     p.add_argument("--shard", action="store_true", help="shard rows over all JAX devices")
-    p.add_argument("--max-period", type=int, default=16,
+    p.add_argument("--max-period", type=count(1, 1000), default=16,
                    help="largest n of period-n orbits looked for (16)")
-    p.add_argument("--max-blocks", type=int, default=8,
+    p.add_argument("--max-blocks", type=count(1, 1000), default=8,
                    help="continuation blocks an unresolved point may get (8)")
-    p.add_argument("--block-periods", type=int, default=256,
+    p.add_argument("--block-periods", type=count(16, 10**6), default=256,
                    help="forcing periods per continuation block (256)")
     p.add_argument("--no-bifurcations", action="store_true",
                    help="skip the continuation of each row's periodic branch")
-    p.add_argument("--ds", type=finite_float, default=0.05,
+    p.add_argument("--ds", type=positive_float, default=0.05,
                    help="initial arclength step of the row continuations (0.05)")
-    p.add_argument("--max-points", type=int, default=200,
+    p.add_argument("--max-points", type=count(2, 10**6), default=200,
                    help="most orbits per row continuation (200); a row whose continuation "
                    "stops early is named in summary.json's notes")
     p.add_argument("--band", type=finite_float, nargs=2, metavar=("LO", "HI"),
@@ -109,8 +121,9 @@ def _check(args) -> None:
     for axis in ("x", "y"):
         name, start, stop, num = (getattr(args, f"{axis}{s}") for s in
                                   ("", "_start", "_stop", "_num"))
-        if num < 1:
-            raise CLIError(f"--{axis}-num must be >= 1, got {num}")
+        if not 1 <= num <= MAX_NUM:
+            raise CLIError(f"--{axis}-num must be a whole number from 1 to {MAX_NUM:,}, "
+                           f"got {num}")
         if not start < stop:
             raise CLIError(f"--{axis}-start must be smaller than --{axis}-stop, got {start:g} "
                            f"and {stop:g}")
@@ -125,8 +138,39 @@ def _check(args) -> None:
         raise CLIError(f"--x and --y are the same parameter '{args.x}'")
     if FREQUENCY not in (args.x, args.y) and not (args.frequency or 0) > 0:
         raise CLIError("neither axis is frequency_hz: give a positive --frequency HZ")
-    if FORCE not in (args.x, args.y) and not args.force > 0:
+    if args.frequency is not None and not args.frequency > 0:
+        raise CLIError(f"--frequency must be positive, got {args.frequency}")
+    if not args.force > 0:
         raise CLIError(f"--force must be positive, got {args.force}")
+    if FORCE in (args.x, args.y):
+        start = args.x_start if args.x == FORCE else args.y_start
+        if not start >= 0:
+            raise CLIError(f"force amplitudes must be >= 0, got {start:g}")
+    if args.band is not None and not 0 < args.band[0] < args.band[1]:
+        raise CLIError(f"--band needs 0 < LO < HI, got {args.band[0]:g} {args.band[1]:g}")
+    if args.x_num * args.y_num > MAX_POINTS:
+        raise CLIError(f"--x-num x --y-num = {args.x_num * args.y_num:,} points exceed "
+                       f"{MAX_POINTS:,}; lower one of them")
+    if args.x_num * args.y_num * args.periods * args.samples_per_period > MAX_SAMPLES:
+        raise CLIError(f"points x --periods x --samples-per-period exceed {MAX_SAMPLES:.0e} "
+                       "samples: the spectra would not fit in memory; lower one of them")
+
+
+def _check_grid(params, args, x, ys) -> None:
+    """Validate every (x, y) parameter combination in one vectorised pass, before anything
+    is computed (a range that crosses an invalid value is refused up front)."""
+    from ..params import validate
+
+    grid_x, grid_y = np.meshgrid(x, ys)
+    p = params
+    if args.y == DAMPING_SCALE:
+        for k in DAMPERS:
+            p = p.replace(k, float(params.get(k)) * grid_y)
+    elif args.y not in (FREQUENCY, FORCE):
+        p = p.replace(args.y, grid_y)
+    if args.x not in (FREQUENCY, FORCE):
+        p = p.replace(args.x, grid_x)
+    validate(p, source=f"--x {args.x} / --y {args.y} range")
 
 
 def run(args) -> int:
@@ -138,7 +182,6 @@ def run(args) -> int:
 
     _check(args)
     params = load_params_from_args(args)
-    folder = out_dir(args.out)
     base = {k: float(params.get(k)) for k in DAMPERS}
 
     def row(y):
@@ -162,10 +205,7 @@ def run(args) -> int:
     x = np.linspace(args.x_start, args.x_stop, args.x_num)
     ys = np.linspace(args.y_start, args.y_stop, args.y_num)
     # Refuse up front a range that crosses an invalid value (not after some rows ran).
-    for y in ys:
-        p_y, _, _ = row(y)
-        if args.x not in (FREQUENCY, FORCE):
-            validate_sweep_values(p_y, args.x, x, "--x")
+    _check_grid(params, args, x, ys)
     warn_implausible_excitation(
         forces=[*(x if args.x == FORCE else []), *(ys if args.y == FORCE else []), args.force],
         frequencies=[*(x if args.x == FREQUENCY else []), *(ys if args.y == FREQUENCY else []),
@@ -203,22 +243,26 @@ def run(args) -> int:
         row_bifurcations
     source = args.params or f"preset:{args.preset or 'default'}"
     unit = {FREQUENCY: "Hz", FORCE: "N", DAMPING_SCALE: "1"}
-    try:
-        from ..machine import parameter_unit
+    from ..machine import parameter_unit
 
+    try:
         config = SweepConfig(
             transient_periods=args.transient, periods=args.periods,
             samples_per_period=args.samples_per_period, lyapunov=args.lyapunov,
             lyapunov_align_periods=min(16, args.transient - 1), batch_size=args.batch,
             chunk_size=args.chunk,
             settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
-        verify = VerifySettings(max_period=args.max_period, max_blocks=args.max_blocks,
-                                min_blocks=min(3, args.max_blocks),
-                                block_periods=args.block_periods,
-                                align_periods=min(16, args.block_periods // 4))
+        y_unit = unit.get(args.y) or parameter_unit(args.y)
+    except ValueError as exc:
+        raise CLIError(str(exc).splitlines()[0]) from None
+    verify = VerifySettings(max_period=args.max_period, max_blocks=args.max_blocks,
+                            min_blocks=min(3, args.max_blocks),
+                            block_periods=args.block_periods,
+                            align_periods=min(16, args.block_periods // 4))
+    folder = out_dir(args.out)  # only now: a refused command line leaves no folder behind
+    try:
         result = atlas(
-            row_problem, x, np.linspace(args.y_start, args.y_stop, args.y_num),
-            y_name=args.y, y_unit=unit.get(args.y) or parameter_unit(args.y), config=config,
+            row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,
             verify=verify, checkpoint_dir=folder / "checkpoint",
             progress=progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
             x_label=_words(args.x), y_label=_words(args.y),

@@ -9,14 +9,20 @@ from .._numerics import half_range
 from ._common import (
     CLIError,
     add_params_args,
+    count,
     finite_float,
     load_params_from_args,
     out_dir,
+    positive_float,
     progress_enabled,
     save_figure,
+    tolerance,
     warn_implausible_excitation,
     write_json,
 )
+
+#: Most rows `simulate` writes to timeseries.csv (about 1.7 GB of text).
+MAX_ROWS = 10**7
 
 
 def register(sub) -> None:
@@ -31,16 +37,20 @@ def register(sub) -> None:
                    help="screw speed [r/min] (thermal chain)")
     p.add_argument("--no-thermal", action="store_true", help="switch thermal deformation off")
     add_params_args(p)
-    p.add_argument("--periods", type=int, default=50, help="saved steady-state periods (50)")
+    p.add_argument("--periods", type=count(2, 10**6), default=50,
+                   help="saved steady-state periods (50)")
     p.add_argument("--verify", action="store_true",
                    help="verify the steady state: Newton (shooting) from the final state finds "
                    "the periodic orbit and its Floquet multipliers, else the run is continued "
                    "until a verified label or 'unresolved' (adds a compile of ~30 s)")
-    p.add_argument("--transient", type=int, default=200, help="discarded periods (200)")
-    p.add_argument("--samples-per-period", type=int, default=64, help="output points per period")
-    p.add_argument("--rtol", type=finite_float, default=1e-8)
-    p.add_argument("--atol", type=finite_float, default=1e-12, help="absolute tolerance [SI]")
-    p.add_argument("--max-steps", type=int, default=4_000_000)
+    p.add_argument("--transient", type=count(0, 10**7), default=200,
+                   help="discarded periods (200)")
+    p.add_argument("--samples-per-period", type=count(8, 10**4), default=64,
+                   help="output points per period (64)")
+    p.add_argument("--rtol", type=tolerance, default=1e-8, help="relative tolerance (1e-8)")
+    p.add_argument("--atol", type=positive_float, default=1e-12,
+                   help="absolute tolerance [SI] (1e-12)")
+    p.add_argument("--max-steps", type=count(1, 10**10), default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"),
                    help="dopri5-fused (default: fast forward-only loop) or a diffrax solver: "
@@ -116,8 +126,11 @@ def run_simulate(args) -> int:
         raise CLIError(f"--frequency must be positive, got {args.frequency}")
     if not args.force >= 0:
         raise CLIError(f"--force must be >= 0, got {args.force}")
-    if args.periods < 2 or args.transient < 0 or args.samples_per_period < 8:
-        raise CLIError("need --periods >= 2, --transient >= 0 and --samples-per-period >= 8")
+    rows = (args.periods + 1) * args.samples_per_period
+    if rows > MAX_ROWS:
+        raise CLIError(f"--periods {args.periods} x --samples-per-period "
+                       f"{args.samples_per_period} would write {rows:,} rows to timeseries.csv "
+                       f"(more than {MAX_ROWS:,}); lower one of them")
     params = _apply_common(load_params_from_args(args), args)
     warn_implausible_excitation(forces=[args.force], frequencies=[args.frequency])
     folder = out_dir(args.out)

@@ -16,6 +16,8 @@ Formulation (stated so a designer can judge it):
 
 import dataclasses
 import functools
+import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -24,11 +26,11 @@ import numpy as np
 import optimistix as optx
 
 from ..params import BallScrewParams, lookup_key, validate
-from ._metrics import get_metric, static_stiffness
+from ._metrics import Metric, OperatingPoint, get_metric, static_stiffness
 from ._orbit import OrbitSettings
 from ._sensitivity import (
     _check_finite,
-    check_parameter_names,
+    check_design_inputs,
     compiled,
     operating_point,
     parameter_values,
@@ -121,6 +123,58 @@ def _objective(metric_name: str, names: tuple, settings: OrbitSettings):
     return theta_of, eqx.filter_jit(solve)
 
 
+class OptimizationStart(NamedTuple):
+    """The checked problem of `optimize`: bounds in file units and the (clipped) start."""
+
+    metric: Metric
+    names: tuple
+    op: OperatingPoint
+    bounds: dict
+    lower: np.ndarray
+    upper: np.ndarray
+    theta: np.ndarray  # the start, clipped 0.1 % inside the bounds
+    z: np.ndarray  # the same in the optimiser's unconstrained variables
+
+
+def optimization_start(metric_name: str, params: BallScrewParams, vary,
+                       bounds: dict | None = None, *, frequency_hz=None, force_n=None
+                       ) -> OptimizationStart:
+    """Every check of `optimize`'s inputs that needs no computing, and its start point.
+
+    ValueError (ParameterError for an unknown name) naming the bad input: an unknown
+    metric or parameter, bounds for a name not varied, non-finite or empty bounds, bounds
+    outside the allowed range, a metric the optimiser cannot trace, a bad operating point.
+    """
+    metric, names, op = check_design_inputs(metric_name, params, vary,
+                                            frequency_hz=frequency_hz, force_n=force_n)
+    if metric.locate is not None:
+        raise ValueError(
+            f"metric '{metric.name}' needs a continuation run per evaluation (a host-side "
+            "search), which the jitted optimiser cannot call; optimise 'frf_peak' (the "
+            "linear resonance peak) or 'amplitude' at the resonance frequency instead, or "
+            "scan candidates with `sensitivities`")
+    full_bounds = default_bounds(params, names)
+    for name, (lo, hi) in (bounds or {}).items():
+        if name not in names:
+            raise ValueError(f"bounds given for '{name}', which is not in --vary "
+                             f"({', '.join(names)})")
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise ValueError(f"bounds for '{name}' must be finite numbers, got {lo} and {hi}")
+        if not lo < hi:
+            raise ValueError(f"bounds for '{name}': lower {lo} must be below upper {hi}")
+        key = lookup_key(name)
+        if (key.low is not None and lo < key.low) or (key.high is not None and hi > key.high):
+            raise ValueError(f"bounds for '{name}' ({lo}, {hi}) leave the allowed range "
+                             f"{key.range_text()}")
+        full_bounds[name] = (float(lo), float(hi))
+    lo = np.array([full_bounds[n][0] for n in names])
+    hi = np.array([full_bounds[n][1] for n in names])
+    theta0 = parameter_values(params, names)
+    frac = np.clip((theta0 - lo) / (hi - lo), 1e-3, 1 - 1e-3)
+    return OptimizationStart(metric, names, op, full_bounds, lo, hi, lo + (hi - lo) * frac,
+                             np.log(frac / (1 - frac)))
+
+
 def optimize(metric_name: str, params: BallScrewParams, vary, bounds: dict | None = None, *,
              min_stiffness_n_per_um: float | None = None, frequency_hz=None, force_n=None,
              max_steps: int = 60, settings: OrbitSettings = OrbitSettings()
@@ -133,34 +187,8 @@ def optimize(metric_name: str, params: BallScrewParams, vary, bounds: dict | Non
       this (exterior penalty, see the module docstring).
     - The metric's `direction` says whether it is minimised or maximised.
     """
-    metric = get_metric(metric_name)
-    names = check_parameter_names(vary)
-    op = operating_point(metric, frequency_hz, force_n)
-    full_bounds = default_bounds(params, names)
-    for name, (lo, hi) in (bounds or {}).items():
-        if name not in names:
-            raise ValueError(f"bounds given for '{name}', which is not in --vary "
-                             f"({', '.join(names)})")
-        if not lo < hi:
-            raise ValueError(f"bounds for '{name}': lower {lo} must be below upper {hi}")
-        key = lookup_key(name)
-        if (key.low is not None and lo < key.low) or (key.high is not None and hi > key.high):
-            raise ValueError(f"bounds for '{name}' ({lo}, {hi}) leave the allowed range "
-                             f"{key.range_text()}")
-        full_bounds[name] = (float(lo), float(hi))
-    lo = np.array([full_bounds[n][0] for n in names])
-    hi = np.array([full_bounds[n][1] for n in names])
-    theta0 = parameter_values(params, names)
-    frac = np.clip((theta0 - lo) / (hi - lo), 1e-3, 1 - 1e-3)
-    z0 = np.log(frac / (1 - frac))
-    theta_start = lo + (hi - lo) * frac
-
-    if metric.locate is not None:
-        raise ValueError(
-            f"metric '{metric.name}' needs a continuation run per evaluation (a host-side "
-            "search), which the jitted optimiser cannot call; optimise 'frf_peak' (the "
-            "linear resonance peak) or 'amplitude' at the resonance frequency instead, or "
-            "scan candidates with `sensitivities`")
+    metric, names, op, full_bounds, lo, hi, theta_start, z0 = optimization_start(
+        metric_name, params, vary, bounds, frequency_hz=frequency_hz, force_n=force_n)
     theta_of, solve = _objective(metric.name, names, settings)
     start_params = with_values(params, names, jnp.asarray(theta_start))
     value_fn = compiled(metric.name, names, settings)[0]

@@ -121,6 +121,17 @@ def operating_point(metric: Metric, frequency_hz=None, force_n=None) -> Operatin
     return OperatingPoint(f, p)
 
 
+def check_design_inputs(metric_name: str, params: BallScrewParams, names, *,
+                        frequency_hz=None, force_n=None):
+    """(metric, names, operating point) after every check that needs no computing: a known
+    metric, known continuous parameters set in `params`, a positive operating point.
+    ValueError (ParameterError for an unknown name) naming the bad input otherwise."""
+    metric = get_metric(metric_name)
+    names = check_parameter_names(names)
+    parameter_values(params, names)
+    return metric, names, operating_point(metric, frequency_hz, force_n)
+
+
 def _check_finite(value, metric: Metric, op: OperatingPoint, what="metric"):
     if not np.all(np.isfinite(np.asarray(value))):
         where = (f" at {float(op.frequency_hz):g} Hz, {float(op.force_n):g} N"
@@ -221,13 +232,21 @@ def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAME
 def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
                                     names=DESIGN_PARAMETERS, *, frequency_hz=None,
                                     force_n=None, rel_step: float = 1e-4,
-                                    settings: OrbitSettings = OrbitSettings()
+                                    settings: OrbitSettings = OrbitSettings(), only=None
                                     ) -> SensitivityResult:
-    """The same by central finite differences (2 evaluations per parameter), for checks."""
-    metric = get_metric(metric_name)
-    names = check_parameter_names(names)
-    op = operating_point(metric, frequency_hz, force_n)
+    """The same by central finite differences (2 evaluations per parameter), for checks.
+
+    `only`: difference just these of `names` (a probe of the largest entries); the value
+    function is still the one compiled for all of `names`, so a probe reuses it. The
+    result then holds the entries of `only`.
+    """
+    metric, names, op = check_design_inputs(metric_name, params, names,
+                                            frequency_hz=frequency_hz, force_n=force_n)
     theta = parameter_values(params, names)
+    missing = [n for n in (only or ()) if n not in names]
+    if missing:
+        raise ValueError(f"cannot probe {', '.join(missing)}: not among {', '.join(names)}")
+    which = list(range(len(names))) if only is None else [names.index(n) for n in only]
     hint0 = locate_hint(metric, params, op, settings)
     if hint0 is not None and hasattr(hint0, "method"):
         # Every perturbed search uses the nominal discretisation (method and harmonic
@@ -247,16 +266,17 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
         return float(value_fn(jnp.asarray(th), params, op, hint))
 
     value = at(theta, hint0)  # the nominal search is the one already done
-    grad = np.zeros(len(names))
-    for i in range(len(names)):
+    grad = np.zeros(len(which))
+    for j, i in enumerate(which):
         h = rel_step * max(abs(theta[i]), 1e-12)
         up, down = theta.copy(), theta.copy()
         up[i] += h
         down[i] -= h
-        grad[i] = (at(up) - at(down)) / (2 * h)
+        grad[j] = (at(up) - at(down)) / (2 * h)
     _check_finite(value, metric, op)
     _check_finite(grad, metric, op, what="finite-difference gradient of")
-    return _result(metric, op, names, theta, value, grad, f"central FD (rel. step {rel_step:g})")
+    return _result(metric, op, tuple(names[i] for i in which), theta[which], value, grad,
+                   f"central FD (rel. step {rel_step:g})")
 
 
 def _result(metric, op, names, theta, value_si, grad_si, method) -> SensitivityResult:

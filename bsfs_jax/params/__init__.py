@@ -17,7 +17,9 @@ from ._params import ParameterError as ParameterError
 from ._params import ParameterWarning as ParameterWarning
 from ._params import ScrewParams as ScrewParams
 from ._params import ThermalParams as ThermalParams
+from ._params import check_value as check_value
 from ._params import lookup_key as lookup_key
+from ._params import one_line as one_line
 from ._params import validate as validate
 from ._vocabulary import KEYS as KEYS
 from ._vocabulary import PLAUSIBLE as PLAUSIBLE

@@ -8,7 +8,7 @@ import numpy as np
 import tomli_w
 
 from .._files import write_text_atomic
-from ._params import BallScrewParams, ParameterError
+from ._params import BallScrewParams, ParameterError, one_line
 from ._vocabulary import BY_SECTION, SECTIONS
 
 PRESET_PACKAGE = "bsfs_jax.params.presets"
@@ -22,28 +22,36 @@ def load_params(path, *, overrides: dict | None = None) -> BallScrewParams:
     same vocabulary applied last. Errors name the file and the key.
     """
     path = Path(path)
+    shown = one_line(str(path), 500)  # every message is one line, whatever the file is called
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
-        raise ParameterError(f"{path}: not a text (UTF-8) file; a parameter file is TOML "
+        raise ParameterError(f"{shown}: not a text (UTF-8) file; a parameter file is TOML "
                              "text (`bsfs params > file.toml` writes a complete one)") from None
     except OSError as exc:
-        raise ParameterError(f"cannot read parameter file '{path}': {exc.strerror}") from None
+        raise ParameterError(f"cannot read parameter file '{shown}': {exc.strerror}") from None
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{path}: not valid TOML: {exc}") from None
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
+        raise ParameterError(f"{shown}: not valid TOML: {one_line(str(exc))}") from None
+    except RecursionError:  # arrays or inline tables nested thousands deep
+        raise ParameterError(f"{shown}: not valid TOML: arrays or tables nested too deeply"
+                             ) from None
     if not data:
-        raise ParameterError(f"{path}: the file sets no parameters (empty); write the keys to "
+        raise ParameterError(f"{shown}: the file sets no parameters (empty); write the keys to "
                              "change, or name a preset with --preset (`bsfs params --list`)")
-    return _from_partial(data, source=str(path), overrides=overrides)
+    return _from_partial(data, source=shown, overrides=overrides)
 
 
 def _from_partial(data: dict, *, source: str, overrides: dict | None = None):
     base_name = data.pop("base", None)
     if base_name is not None and not isinstance(base_name, str):
         raise ParameterError(f"{source}: 'base' must be a preset name string")
-    merged = _merge(_preset_dict(base_name or "default"), data)
+    try:
+        base = _preset_dict(base_name or "default")
+    except ParameterError as exc:
+        raise ParameterError(f"{source}: 'base': {exc}") from None
+    merged = _merge(base, data)
     if overrides:
         merged = _merge(merged, overrides)
     return BallScrewParams.from_dict(merged, source=source)
@@ -72,7 +80,8 @@ def _preset_dict(name: str) -> dict:
 
         close = difflib.get_close_matches(name, names, n=1)
         hint = f" Did you mean '{close[0]}'?" if close else ""
-        raise ParameterError(f"unknown preset '{name}'.{hint} Available: {', '.join(names)}")
+        raise ParameterError(f"unknown preset '{one_line(name)}'.{hint} Available: "
+                             f"{', '.join(names)}")
     data = tomllib.loads(resources.files(PRESET_PACKAGE).joinpath(f"{name}.toml").read_text())
     base = data.pop("base", None)
     data.pop("description", None)

@@ -26,6 +26,15 @@ class ParameterError(ValueError):
     """A parameter file or value is malformed or unphysical; the message says which."""
 
 
+def one_line(text, limit: int = 80) -> str:
+    """`text` as it may appear inside a one-line message: control characters (newlines,
+    tabs, ...) escaped as in a Python literal, and cut to `limit` characters."""
+    text = str(text)
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _arr(x):
     return x if x is None else jnp.asarray(x, dtype=float)
 
@@ -202,9 +211,10 @@ def lookup_key(name: str) -> Key:
     """The vocabulary entry for `section.key`, or a ParameterError with suggestions."""
     if name in BY_NAME:
         return BY_NAME[name]
-    close = difflib.get_close_matches(name, list(BY_NAME), n=3, cutoff=0.5)
+    close = difflib.get_close_matches(str(name), list(BY_NAME), n=3, cutoff=0.5)
     hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
-    raise ParameterError(f"unknown parameter '{name}'.{hint} Run `bsfs params` for the list.")
+    raise ParameterError(f"unknown parameter '{one_line(name)}'.{hint} Run `bsfs params` for "
+                         "the list.")
 
 
 def check_vocabulary(data: dict, *, source: str = "<dict>") -> None:
@@ -216,7 +226,7 @@ def check_vocabulary(data: dict, *, source: str = "<dict>") -> None:
             close = difflib.get_close_matches(section, SECTIONS, n=1, cutoff=0.5)
             hint = f" Did you mean [{close[0]}]?" if close else ""
             raise ParameterError(
-                f"{source}: unknown section [{section}].{hint} Allowed: "
+                f"{source}: unknown section [{one_line(section)}].{hint} Allowed: "
                 + ", ".join(f"[{s}]" for s in SECTIONS)
             )
         if not isinstance(values, dict):
@@ -227,22 +237,39 @@ def check_vocabulary(data: dict, *, source: str = "<dict>") -> None:
                 close = difflib.get_close_matches(key, known, n=1, cutoff=0.5)
                 hint = f" Did you mean '{close[0]}'?" if close else ""
                 raise ParameterError(
-                    f"{source}: unknown key '{key}' in [{section}].{hint} "
+                    f"{source}: unknown key '{one_line(key)}' in [{section}].{hint} "
                     f"Allowed keys in [{section}]: {', '.join(known)}."
                 )
+
+
+def check_value(name: str, value, source: str = "parameters"):
+    """`value` (file units) for the vocabulary key `name`, checked as a file's value is:
+    a number within the allowed range (or true/false for a switch); returns it in SI
+    units. ParameterError naming the key otherwise."""
+    return _convert(lookup_key(name), value, source)
 
 
 def _convert(key: Key, value, source: str):
     if key.kind == "bool":
         if not isinstance(value, bool):
-            raise ParameterError(f"{source}: '{key.name}' must be true or false, got {value!r}")
+            raise ParameterError(f"{source}: '{key.name}' must be true or false, got "
+                                 f"{one_line(repr(value), 40)}")
         return value
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ParameterError(
-            f"{source}: '{key.name}' must be a number, got {value!r} ({type(value).__name__})"
+            f"{source}: '{key.name}' must be a number, got {one_line(repr(value), 40)} "
+            f"({type(value).__name__})"
         )
-    _check_range(key, float(value), source)
-    return float(value) * key.to_si
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond 1.8e308
+        raise ParameterError(f"{source}: '{key.name}' = {one_line(value, 20)} is too large "
+                             f"for a number; allowed {key.range_text()} ({key.doc})") from None
+    _check_range(key, number, source)
+    if not math.isfinite(number * key.to_si):
+        raise ParameterError(f"{source}: '{key.name}' = {number:g} overflows in SI units; "
+                             f"allowed {key.range_text()} ({key.doc})")
+    return number * key.to_si
 
 
 def _check_range(key: Key, value: float, source: str) -> None:

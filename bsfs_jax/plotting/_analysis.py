@@ -8,6 +8,8 @@ Displacements in metres are drawn in micrometres for legibility.
 import numpy as np
 from matplotlib.figure import Figure
 
+from ._layout import place_legend
+
 _DIR_STYLE = {
     "cold": dict(color="C0", marker="o", ls="-"),
     "up": dict(color="C3", marker="^", ls="-"),
@@ -17,10 +19,14 @@ _DIR_STYLE = {
 
 def _display(unit: str):
     """(factor, label unit) to draw a quantity in `unit` legibly."""
-    return {"m": (1e6, "um"), "m/s": (1.0, "m/s")}.get(unit, (1.0, unit))
+    return {"m": (1e6, "µm"), "m/s": (1.0, "m/s")}.get(unit, (1.0, unit))
 
 
 _PARAM_WORDS = {"frequency_hz": "Excitation frequency", "force_n": "Force amplitude"}
+# The ball screw's state symbols in words (other problems keep their own names).
+_STATE_WORDS = {"x_b": "bearing-joint displacement", "x_s": "screw displacement",
+                "x_n": "nut displacement", "v_b": "bearing-joint velocity",
+                "v_s": "screw velocity", "v_n": "nut velocity"}
 
 
 def _param_label(result) -> str:
@@ -28,12 +34,22 @@ def _param_label(result) -> str:
     return f"{name} [{result.unit}]" if result.unit else name
 
 
-def _state_label(result, c: int):
+def _state_label(result, c: int, *, what: str = "", suffix: str = ""):
+    """(factor, label): '{what} {words} {symbol}{suffix} [unit]', e.g. 'amplitude of nut
+    displacement x_n [µm]'."""
     names, units = result.state_names, result.state_units
     name = names[c] if names else f"y{c}"
+    words = f"{_STATE_WORDS[name]} {name}" if name in _STATE_WORDS else name
     unit = units[c] if units else ""
     factor, shown = _display(unit)
-    return factor, (f"{name} [{shown}]" if shown else name)
+    text = f"{what}{words}{suffix}"
+    text = text[0].upper() + text[1:]
+    return factor, (f"{text} [{shown}]" if shown else text)
+
+
+def _short_name(result, c: int) -> str:
+    names = result.state_names
+    return names[c] if names else f"y{c}"
 
 
 def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None = None):
@@ -44,7 +60,7 @@ def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None
     with a red x on the axis.
     """
     c = result.observe if coordinate is None else coordinate
-    factor, ylabel = _state_label(result, c)
+    factor, ylabel = _state_label(result, c, suffix=" at t = kT")
     fig = Figure(figsize=(8, 5))
     ax = fig.add_subplot()
     verdicts = getattr(result, "verdicts", None)
@@ -77,11 +93,11 @@ def plot_bifurcation(result, *, coordinate: int | None = None, title: str | None
             ax.plot(result.values[bad], np.zeros(bad.sum()), "x", color="red",
                     label="failed point")
     ax.set_xlabel(_param_label(result))
-    ax.set_ylabel(f"{ylabel} at t = kT")
-    ax.set_title(title or f"Bifurcation diagram: Poincare samples of {ylabel.split(' ')[0]} "
-                 f"vs {result.param}")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title or f"Bifurcation diagram: Poincare samples of {_short_name(result, c)} "
+                 f"vs {_param_label(result).split(' [')[0].lower()}")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8, markerscale=2)
+    place_legend(ax, fontsize=8, markerscale=2)
     return fig
 
 
@@ -90,7 +106,7 @@ def plot_frc(result, *, coordinate: int | None = None, jumps=None, title: str | 
     parameter for each sweep direction, with the detected jumps drawn as arrows at their
     located folds and listed in the legend."""
     c = result.observe if coordinate is None else coordinate
-    factor, ylabel = _state_label(result, c)
+    factor, ylabel = _state_label(result, c, what="amplitude of ")
     fig = Figure(figsize=(8, 5))
     ax = fig.add_subplot()
     for d, name in enumerate(result.directions):
@@ -113,12 +129,12 @@ def plot_frc(result, *, coordinate: int | None = None, jumps=None, title: str | 
         ax.plot([], [], ls="none", marker=r"$\updownarrow$", color="k",
                 label=f"{j.direction} {j.kind}: {where}".rstrip())
     ax.set_xlabel(_param_label(result))
-    ax.set_ylabel(f"amplitude of {ylabel}")
+    ax.set_ylabel(ylabel)
     ax.set_title(title or f"Frequency-response curve ({result.mode} sweep)"
                  if result.param == "frequency_hz" else
                  title or f"Response amplitude vs {result.param} ({result.mode} sweep)")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    place_legend(ax, fontsize=8)
     return fig
 
 
@@ -135,7 +151,7 @@ def plot_waterfall(result, *, direction: str | None = None, max_harmonic: float 
     """
     d = 0 if direction is None else result.direction_index(direction)
     c = result.observe
-    factor, ylabel = _state_label(result, c)
+    factor, zlabel = _state_label(result, c, what="amplitude of ")
     fig = Figure(figsize=(9, 6))
     ax = fig.add_subplot(projection="3d")
     keep = (result.spectrum_order > 0) & (result.spectrum_order <= max_harmonic)
@@ -156,8 +172,9 @@ def plot_waterfall(result, *, direction: str | None = None, max_harmonic: float 
     ax.set_xlim(0.0, f_max)
     ax.set_xlabel(f"Response frequency [{funit}]")
     ax.set_ylabel(_param_label(result))
-    ax.set_zlabel(f"log10 amplitude of {ylabel}" if log_amplitude else f"amplitude of {ylabel}")
-    ax.set_title(title or f"Waterfall: spectrum of {ylabel.split(' ')[0]} vs "
+    zlabel = zlabel[0].lower() + zlabel[1:]
+    ax.set_zlabel(f"log10 {zlabel}" if log_amplitude else zlabel)
+    ax.set_title(title or f"Waterfall: spectrum of {_short_name(result, c)} vs "
                  f"{_param_label(result).split(' [')[0].lower()}")
     return fig
 
@@ -165,11 +182,14 @@ def plot_waterfall(result, *, direction: str | None = None, max_harmonic: float 
 def plot_response(t, displacement, velocity, strobe, freqs_hz, amplitude, *,
                   title: str = "Response", displacement_unit: str = "m",
                   velocity_unit: str = "m/s", name: str = "displacement",
-                  max_frequency_hz: float | None = None, window: str = "hann"):
+                  max_frequency_hz: float | None = None, window: str = "hann",
+                  min_frequency_hz: float | None = None):
     """Four panels as in the paper's Figs. 18-21: time history, phase portrait,
     stroboscopic Poincare section and amplitude spectrum (log scale).
 
-    `strobe` is (k, 2): (displacement, velocity) at t = kT. The Poincare panel shares the
+    `strobe` is (k, 2): (displacement, velocity) at t = kT. The spectrum's axis ends at
+    `max_frequency_hz`, by default at the last line above its plotted floor (1e-6 of the
+    largest) plus 10 %, but not before `min_frequency_hz`. The Poincare panel shares the
     phase portrait's limits, so a period-1 orbit shows as one isolated point rather than an
     autoscaled cloud of integration round-off; the orbit is drawn faintly behind it.
     """
@@ -184,6 +204,7 @@ def plot_response(t, displacement, velocity, strobe, freqs_hz, amplitude, *,
     axs = fig.subplots(2, 2)
     ax = axs[0, 0]
     ax.plot((t - t[0]) * 1e3, x, lw=0.8, color="C0")
+    ax.set_xlim(0.0, (t[-1] - t[0]) * 1e3)
     ax.set_xlabel("time after transient [ms]")
     ax.set_ylabel(f"{name} [{ux}]")
     ax.set_title("(a) time history")
@@ -205,12 +226,17 @@ def plot_response(t, displacement, velocity, strobe, freqs_hz, amplitude, *,
     ax = axs[1, 1]
     f = np.asarray(freqs_hz)
     a = np.asarray(amplitude) * fx
-    keep = f <= (max_frequency_hz if max_frequency_hz is not None else f.max())
-    top = max(float(a[keep].max()), 1e-300)
+    top = max(float(np.nanmax(a)), 1e-300)
+    if max_frequency_hz is None:  # the last line above the plotted floor, plus 10 %
+        shown = np.flatnonzero(a > top * 1e-6)
+        max_frequency_hz = 1.1 * float(f[shown[-1]]) if shown.size else float(f.max())
+        max_frequency_hz = min(max(max_frequency_hz, min_frequency_hz or 0.0), f.max())
+    keep = f <= max_frequency_hz
     ax.semilogy(f[keep], np.maximum(a[keep], top * 1e-7), lw=0.9, color="C2")
+    ax.set_xlim(0.0, max_frequency_hz)
     ax.set_ylim(top * 1e-6, top * 3)
     ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel(f"amplitude [{ux}] (log scale)")
+    ax.set_ylabel(f"amplitude (log scale) [{ux}]")
     ax.set_title(f"(d) amplitude spectrum ({window} window)")
     for a_ in axs.ravel():
         a_.grid(alpha=0.3)

@@ -8,6 +8,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
+from ._layout import legend_below
+
 # Words for the usual parameter names (anything else: the name, "_" as spaces).
 _WORDS = {"frequency_hz": "Excitation frequency", "force_n": "Force amplitude",
           "damping_scale": "Damping scale (factor on all dampers)"}
@@ -112,7 +114,7 @@ def plot_atlas_motion(atlas, *, title: str | None = None):
     return fig
 
 
-def plot_atlas_amplitude(atlas, unit_scale: float = 1e6, unit: str = "um", *,
+def plot_atlas_amplitude(atlas, unit_scale: float = 1e6, unit: str = "µm", *,
                          title: str | None = None):
     """Colour map of the amplitude (half peak-to-peak, times `unit_scale`, in `unit`) with
     a labelled colour bar and the bifurcation curves; failed points are blank."""
@@ -126,8 +128,8 @@ def plot_atlas_amplitude(atlas, unit_scale: float = 1e6, unit: str = "um", *,
     bar.set_label(f"Amplitude (half peak-to-peak) [{unit}]" if unit else
                   "Amplitude (half peak-to-peak)")
     handles = _overlay(ax, atlas)
-    if handles:
-        ax.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.8,
-                  handlelength=3.5)
     fig.tight_layout()
+    if handles:  # a colour map is data everywhere: the legend goes below it
+        legend_below(ax, handles=handles, fontsize=8, handlelength=3.5,
+                     ncol=len(handles))
     return fig

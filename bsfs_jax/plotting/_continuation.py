@@ -1,6 +1,10 @@
 """Frequency-response curves from a continued branch: stable solid, unstable dashed."""
 
+import re
+
 import numpy as np
+
+from ._layout import place_legend
 
 _MARKERS = {
     "fold": ("o", "tab:red", "fold (mu = +1)"),
@@ -76,11 +80,18 @@ def plot_continuation(branch, *, ax=None, x_scale: float = 1.0, y_scale: float =
     peak = getattr(branch, "peak", None)
     if peak is not None:
         ax.plot(peak.p * x_scale, peak.amplitude * y_scale, "v", color="k", ms=6,
-                label=f"peak {peak.amplitude * y_scale:.4g} at {peak.p * x_scale:.5g}")
+                label=f"peak {peak.amplitude * y_scale:.4g}{_unit(y_label)} at "
+                      f"{peak.p * x_scale:.5g}{_unit(x_label)}")
     ax.set_xlabel(x_label)
     ax.set_ylabel(y_label)
     if title:
         ax.set_title(title)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    place_legend(ax, fontsize=8)
     return ax.figure
+
+
+def _unit(label: str) -> str:
+    """' unit' from an axis label 'words [unit]' ('' without one)."""
+    found = re.search(r"\[([^\]]+)\]\s*$", label)
+    return f" {found.group(1)}" if found else ""

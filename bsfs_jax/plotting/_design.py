@@ -7,6 +7,8 @@ Drawing only: the numbers come from `bsfs_jax.design` results.
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ._layout import legend_below, place_legend
+
 
 def tornado(result, *, ax=None, max_rows: int | None = None, compare=None, title=None):
     """Horizontal bars of d ln m / d ln p, largest magnitude on top.
@@ -31,7 +33,6 @@ def tornado(result, *, ax=None, max_rows: int | None = None, compare=None, title
         cmp_vals = np.array([compare.normalised[compare.names.index(n)] for n in names])
         ax.scatter(cmp_vals, y, marker="|", s=220, color="black", zorder=3,
                    label=compare.method)
-        ax.legend(loc="lower right", fontsize=8)
     ax.axvline(0.0, color="0.3", lw=0.8)
     ax.set_yticks(y)
     ax.set_yticklabels(names, fontsize=8)
@@ -50,6 +51,8 @@ def tornado(result, *, ax=None, max_rows: int | None = None, compare=None, title
                  f"{result.unit}{where}", fontsize=10)
     ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
+    if compare is not None:
+        place_legend(ax, fontsize=8)
     return fig
 
 
@@ -71,20 +74,25 @@ def optimization_summary(result, *, checks=None):
     ax1.set_yticks(y)
     ax1.set_yticklabels(result.names, fontsize=8)
     ax1.set_xlim(-0.05, 1.45)
+    ax1.set_ylim(y.min() - 0.6, y.max() + 0.6)
     ax1.set_xlabel("position within bounds (0 = lower, 1 = upper) [-]")
     ax1.set_title("Design variables (file units)", fontsize=10)
-    ax1.legend(loc="lower right", fontsize=8)
     labels = ["start", "optimum"]
     vals = [result.start_value, result.optimum_value]
     ax2.bar(labels, vals, color=["0.6", "#2a6fb0"], width=0.5, label="model")
-    if checks:
-        sims = [c.get("simulated") for c in checks]
-        if all(s is not None for s in sims):
-            ax2.scatter(labels, sims, color="black", marker="x", s=60, zorder=3,
-                        label="simulation")
-            ax2.legend(fontsize=8)
-    ax2.set_ylabel(f"{result.metric} [{result.unit}]")
+    sims = [c.get("simulated") for c in checks or []]
+    if sims and all(s is not None for s in sims):
+        ax2.scatter(labels, sims, color="black", marker="x", s=60, zorder=3,
+                    label="simulation")
+        vals = vals + sims
+    top = max(vals)
+    if top > 0:  # headroom above the bars for the legend
+        ax2.set_ylim(min(0.0, min(vals)), 1.3 * top)
+    ax2.set_ylabel(f"{result.metric.replace('_', ' ')} [{result.unit}]")
     ax2.set_title(f"{result.direction}imise {result.metric}: "
                   f"{result.improvement_percent:+.1f} % better", fontsize=10)
+    fig.tight_layout()
+    legend_below(ax1, fontsize=8, ncol=2)
+    place_legend(ax2, fontsize=8, ncol=2)
     fig.tight_layout()
     return fig

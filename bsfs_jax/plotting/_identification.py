@@ -5,6 +5,8 @@ Plotting only: every number comes from the identification results passed in.
 
 import numpy as np
 
+from ._layout import place_legend
+
 
 def fit_figure(records, model_coeffs, frequencies_hz, models=None, *, periods: float = 3.0,
                max_records: int = 18):
@@ -17,23 +19,27 @@ def fit_figure(records, model_coeffs, frequencies_hz, models=None, *, periods: f
     import matplotlib.pyplot as plt
 
     n = min(len(records), max_records)
-    fig, axes = plt.subplots(n, 2, figsize=(11, 2.0 * n + 0.6), squeeze=False)
+    height = 2.0 * n + 1.0
+    fig, axes = plt.subplots(n, 2, figsize=(11, height), squeeze=False)
     for i in range(n):
         rec, c, f = records[i], np.asarray(model_coeffs[i]), float(frequencies_hz[i])
         t, a = rec.time, rec.acceleration - np.mean(rec.acceleration)
         m = t < t[0] + periods / f
         k = np.arange(1, c.size + 1)
-        model = np.real(np.exp(2j * np.pi * f * np.outer(t[m], k)) @ c)
+        # The model on its own dense grid (64 points per period): smooth even where the
+        # record has only a few samples per period.
+        tm = t[0] + np.arange(int(np.ceil(64 * periods)) + 1) / (64 * f)
+        model = np.real(np.exp(2j * np.pi * f * np.outer(tm, k)) @ c)
         ax = axes[i, 0]
-        ax.plot(1e3 * t[m], a[m], ".", ms=2, color="0.45", label="measured")
-        ax.plot(1e3 * t[m], model, "-", color="C3", lw=1.2, label="model (steady state)")
-        ax.set_ylabel("accel. [m/s²]")
+        ax.plot(1e3 * (t[m] - t[0]), a[m], ".", ms=2, color="0.45", label="measured")
+        ax.plot(1e3 * (tm - t[0]), model, "-", color="C3", lw=1.2,
+                label="model (steady state)")
+        ax.set_xlim(0.0, 1e3 * periods / f)
+        ax.set_ylabel("acceleration [m/s²]")
         label = f" ({models[i]})" if models is not None else ""
         ax.set_title(f"{rec.name}{label}", fontsize=9)
         if i == n - 1:
-            ax.set_xlabel("time [ms]")
-        if i == 0:
-            ax.legend(fontsize=7, loc="upper right")
+            ax.set_xlabel("time from the record's start [ms]")
         ax = axes[i, 1]
         win = np.hanning(a.size)
         spec = 2 * np.abs(np.fft.rfft(a * win)) / np.sum(win)
@@ -41,13 +47,15 @@ def fit_figure(records, model_coeffs, frequencies_hz, models=None, *, periods: f
         ax.semilogy(fr, spec, color="0.45", lw=0.7, label="measured (Hann)")
         ax.semilogy(f * k, np.abs(c), "o", mfc="none", color="C3", label="model harmonics")
         ax.set_xlim(0, min(rec.sample_rate_hz / 2, 4.5 * f))
-        ax.set_ylabel("|accel.| [m/s²]")
+        ax.set_ylabel("amplitude [m/s²]")
         if i == n - 1:
             ax.set_xlabel("frequency [Hz]")
-        if i == 0:
-            ax.legend(fontsize=7, loc="upper right")
+    # One legend for all panels, between the title and the first row: never over data.
+    handles = [h for ax in axes[0] for h in ax.get_legend_handles_labels()[0]]
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=8,
+               frameon=False, bbox_to_anchor=(0.5, 1.0 - 0.36 / height))
     fig.suptitle("Worktable acceleration: measured vs identified model", fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.3 / height))
     return fig
 
 
@@ -76,10 +84,12 @@ def correlation_figure(names, correlation, singular_values, direction_std=None,
                      label="std of the combination")
     if threshold is not None:
         ax2.axhline(threshold, color="C3", lw=0.8, ls=":", label=f"identified below {threshold}")
-    ax2.set_xlabel("direction (right singular vector) index")
-    ax2.set_ylabel("value [-]")
+    ax2.set_xticks(np.arange(1, sv.size + 1))
+    ax2.set_xlabel("direction: right singular vector number (largest first)")
+    ax2.set_ylabel("scaled value [-]")
     ax2.set_title("Identifiability: scaled Jacobian spectrum")
-    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    place_legend(ax2, fontsize=8)
     fig.tight_layout()
     return fig
 
@@ -99,9 +109,10 @@ def plan_figure(plan_names, param_names, rel_std, *, threshold=0.1, recommended=
     ax.axhline(threshold, color="k", ls=":", lw=0.8, label=f"identifiable below {threshold}")
     ax.set_yscale("log")
     ax.set_xticks(x, param_names, rotation=30, ha="right")
-    ax.set_ylabel("expected std (relative; um for offsets)")
+    ax.set_ylabel("expected standard error [relative; µm for offsets]")
     ax.set_title("Test plans: expected standard errors from the Fisher information\n"
                  "(bars at 1e6: not identifiable, infinite variance)", fontsize=10)
-    ax.legend(fontsize=8)
+    fig.tight_layout()
+    place_legend(ax, fontsize=8)
     fig.tight_layout()
     return fig

@@ -20,11 +20,19 @@ def trajectory_spectrum(traj, dof: int = 2):
     return amplitude_spectrum(x, float(t[1] - t[0]), window="rect")
 
 
-def response_figure(traj, *, title: str = "", dof: int = 2, max_harmonic: float = 8.0):
-    """Time history, phase portrait, Poincare points and spectrum of one mass of `traj`."""
+def response_figure(traj, *, title: str = "", dof: int = 2,
+                    max_harmonic: float | None = None):
+    """Time history, phase portrait, Poincare points and spectrum of one mass of `traj`.
+
+    The spectrum's axis ends at its last line above the plotted floor (every line that
+    `simulate`'s summary lists as dominant is on it), at least at the 2nd harmonic of the
+    forcing; `max_harmonic` caps it at that many harmonics instead.
+    """
     state = np.asarray(traj.state)
     strobe = state[:: traj.samples_per_period][:, [dof, dof + 3]]
     freqs, amp = trajectory_spectrum(traj, dof)
+    f0 = 1.0 / float(traj.period)
     return plot_response(np.asarray(traj.t), state[:, dof], state[:, dof + 3], strobe, freqs,
                          amp, title=title or "Response", name=_NAMES[dof],
-                         max_frequency_hz=max_harmonic / float(traj.period), window="rect")
+                         max_frequency_hz=None if max_harmonic is None else max_harmonic * f0,
+                         min_frequency_hz=2.0 * f0, window="rect")

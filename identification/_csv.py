@@ -1,0 +1,204 @@
+"""CSV records: `# key = value` header lines, one column-name line, then the samples or lines.
+
+Time record (see `_records.py` for the header keys)::
+
+    # frequency_hz = 120.0
+    # force_amplitude_n = 100.0
+    # sample_rate_hz = 10240.0
+    # speed_rpm = 2000.0
+    # ambient_c = 20.0
+    time_s,force_n,acceleration_m_s2
+    0.0000000,1.234,0.0123
+
+FRF record (accelerance, (m/s^2)/N, e^{+i w t} convention)::
+
+    # kind = frf
+    # excitation = chirp          (chirp | random | hammer | frf)
+    # speed_rpm = 2000.0
+    # ambient_c = 20.0
+    # n_averages = 1              (needed when the variance comes from the coherence)
+    # force_amplitude_n = 20.0    (or force_rms_n; optional)
+    frequency_hz,re,im,std_re,std_im,coherence
+    50.0,-0.0123,0.00045,1.2e-4,1.2e-4,0.998
+
+`std_re`, `std_im` (standard errors of Re and Im) and `coherence` are optional; without the
+standard errors they are derived from the coherence and `n_averages` (`frf_variance`).
+Other `key = value` lines are kept in `meta` (reported, not used).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from bsfs_jax.params import write_text_atomic
+
+from ._records import COLUMNS, RecordError, finish, format_meta_value, parse_value, unpack
+
+FRF_COLUMNS = ("frequency_hz", "re", "im")
+FRF_OPTIONAL = ("std_re", "std_im", "coherence")
+
+
+def load_csv(path: Path):
+    """A time `Record` or, with `# kind = frf`, an `FrfRecord`."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordError(f"{path}: cannot read as text ({exc}).") from None
+    meta, header_line = _read_header(lines)
+    kind = meta.get("kind", "time")
+    if kind not in ("time", "frf"):
+        raise RecordError(f"{path}: header 'kind = {kind}' is not 'time' or 'frf'.")
+    required, optional = (FRF_COLUMNS, FRF_OPTIONAL) if kind == "frf" else (COLUMNS, ())
+    if header_line is None:
+        raise RecordError(f"{path}: no column header line found. After the '# key = value' "
+                          f"lines, write the header '{','.join(required)}' and the data.")
+    names = _check_columns(path, lines[header_line], header_line + 1, required, optional)
+    first = header_line + 2  # 1-based line number of the first data line
+    body = "\n".join(lines[header_line + 1:])
+    try:
+        data = np.loadtxt(io.StringIO(body), delimiter=",", ndmin=2)
+    except ValueError:
+        data = None
+    if data is None or data.shape[1] != len(names):
+        _locate_bad_row(path, lines[header_line + 1:], first, len(names))
+    cols = {n: data[:, j] for j, n in enumerate(names)}
+    if kind == "frf":
+        return _finish_frf_csv(path, cols, meta, first)
+    return finish(path, cols["time_s"], cols["force_n"], cols["acceleration_m_s2"], meta,
+                  lambda idx: f"{path}:{first + idx}")
+
+
+def _read_header(lines):
+    meta: dict = {}
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            body = stripped.lstrip("#").strip()
+            if "=" in body:
+                key, value = body.split("=", 1)
+                meta[key.strip()] = parse_value(value)
+            continue
+        return meta, i
+    return meta, None
+
+
+def _check_columns(path, line, lineno, required, optional):
+    names = [c.strip() for c in line.split(",")]
+    where = f"{path}:{lineno}"
+    allowed = (*required, *optional)
+    unknown = [c for c in names if c not in allowed]
+    if unknown:
+        extra = f" (optional: {', '.join(optional)})" if optional else ""
+        raise RecordError(f"{where}: unknown column(s) {', '.join(repr(c) for c in unknown)}. "
+                          f"The columns must be exactly {', '.join(required)}{extra} (SI "
+                          "units); rename or remove the others.")
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise RecordError(f"{where}: missing column(s) {', '.join(repr(c) for c in missing)}. "
+                          f"A record needs {', '.join(required)}.")
+    if len(set(names)) != len(names):
+        raise RecordError(f"{where}: a column appears twice in {names}.")
+    if ("std_re" in names) != ("std_im" in names):
+        raise RecordError(f"{where}: give both std_re and std_im (standard errors of Re and "
+                          "Im) or neither.")
+    return names
+
+
+def _locate_bad_row(path, rows, first_line, ncols):
+    for j, row in enumerate(rows):
+        if not row.strip():
+            raise RecordError(f"{path}:{first_line + j}: empty line inside the data. Remove it "
+                              "(the loader does not skip lines silently).")
+        parts = row.split(",")
+        if len(parts) != ncols:
+            raise RecordError(f"{path}:{first_line + j}: {len(parts)} values, expected {ncols}. "
+                              "Fix or remove this line.")
+        for p in parts:
+            try:
+                float(p)
+            except ValueError:
+                raise RecordError(f"{path}:{first_line + j}: '{p.strip()}' is not a number. "
+                                  "Fix the value or cut the record before it.") from None
+    raise RecordError(f"{path}: could not parse the samples.")
+
+
+def _finish_frf_csv(path, cols, meta, first):
+    from ._frf import finish_frf
+
+    std = (np.stack([cols["std_re"], cols["std_im"]], axis=1) if "std_re" in cols else None)
+    meta = {k: v for k, v in meta.items() if k != "kind"}
+    return finish_frf(path, cols["frequency_hz"], cols["re"] + 1j * cols["im"], std,
+                      cols.get("coherence"), meta, lambda idx: f"{path}:{first + idx}")
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def _header(meta: dict, digits: int = 10) -> list[str]:
+    out = []
+    for k, v in meta.items():
+        text = format_meta_value(v, digits)
+        if text is not None:
+            out.append(f"# {k} = {text}")
+    return out
+
+
+def format_record_csv(t, force, acc, meta: dict, *, digits: int = 6) -> str:
+    """CSV text of a record: `# key = value` header, column line, samples."""
+    lines = _header(meta)
+    lines.append(",".join(COLUMNS))
+    tdig = max(7, int(math.ceil(-math.log10(float(t[1] - t[0])))) + 3)
+    tt = np.char.mod(f"%.{tdig}f", np.asarray(t, float))
+    ff = np.char.mod(f"%.{digits}g", np.asarray(force, float))
+    aa = np.char.mod(f"%.{digits}g", np.asarray(acc, float))
+    rows = np.char.add(np.char.add(np.char.add(np.char.add(tt, ","), ff), ","), aa)
+    return "\n".join(lines) + "\n" + "\n".join(rows.tolist()) + "\n"
+
+
+def write_record_csv(path, record_or_arrays, meta: dict | None = None, *,
+                     digits: int = 6) -> Path:
+    """Write a record atomically (temp file + rename). `digits`: significant digits."""
+    t, force, acc, meta = unpack(record_or_arrays, meta)
+    text = format_record_csv(t, force, acc, meta, digits=digits)
+    path = Path(path)
+    write_text_atomic(path, text)
+    return path
+
+
+def frf_header(frf) -> dict:
+    """The header keys of an `FrfRecord`, in file order (the FRF's own fields first)."""
+    head = {"excitation": frf.excitation, "speed_rpm": frf.speed_rpm,
+            "ambient_c": frf.ambient_c, "n_averages": float(frf.n_averages)}
+    if frf.force_amplitude_n is not None:
+        key = "force_rms_n" if frf.meta.get("force_level") == "rms" else "force_amplitude_n"
+        head[key] = frf.force_amplitude_n
+    skip = {"kind", "force_amplitude_n", "force_rms_n"}
+    head.update({k: v for k, v in frf.meta.items() if k not in head and k not in skip})
+    return head
+
+
+def format_frf_csv(frf, *, digits: int = 12) -> str:
+    """CSV text of an `FrfRecord` (standard errors always written, coherence if known)."""
+    lines = ["# kind = 'frf'", *_header(frf_header(frf))]
+    cols = [frf.frequency_hz, frf.accelerance.real, frf.accelerance.imag, *frf.std.T]
+    names = [*FRF_COLUMNS, "std_re", "std_im"]
+    if frf.coherence is not None:
+        cols.append(frf.coherence)
+        names.append("coherence")
+    lines.append(",".join(names))
+    body = np.char.mod(f"%.{digits}g", np.stack(cols, axis=1))
+    rows = [",".join(r) for r in body.tolist()]
+    return "\n".join(lines) + "\n" + "\n".join(rows) + "\n"
+
+
+def write_frf_csv(path, frf, *, digits: int = 12) -> Path:
+    """Write an `FrfRecord` as CSV atomically. `digits`: significant digits."""
+    path = Path(path)
+    write_text_atomic(path, format_frf_csv(frf, digits=digits))
+    return path

@@ -1,0 +1,381 @@
+"""The fit problem: which parameters, their priors, the data and the noise-weighted residual.
+
+Parametrisation. Every unknown is a well-scaled, unconstrained number theta: positive
+quantities (Hertz coefficients, preloads, screw stiffness, damping, thermal expansion) as
+theta = ln(value / prior value), signed thermal offsets as theta = D - D_prior in
+micrometres. So theta = 0 is the prior, a unit of theta is "a factor e" or "1 um", and a
+standard error of theta is a relative error (or um), whatever the parameter's size.
+
+Priors (optional; maximum a posteriori). Each parameter may carry a Gaussian prior on theta
+with standard deviation `sigma` (so a log-normal prior on positive values). The prior enters
+the residual as extra entries theta_i / sigma_i, which makes the cost the negative log
+posterior and keeps directions that the data do not determine where the prior puts them;
+without priors (`priors=None`) the fit is maximum likelihood.
+
+Residual. The noise-weighted difference of measured and model worktable acceleration:
+harmonics of every sine record (see `_measurement.py`) and lines of every FRF record
+(chirp, random or hammer; accelerance times a unit force). Records at different spindle
+speeds share stiffness, preload and damping; each speed gets its own thermal offsets
+(`d_n`, `d_b`) or the thermal chain's expansion coefficient is fitted (`expansion`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import bsfs_jax
+from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
+
+from ._measurement import linear_acceleration, nonlinear_acceleration, receptance
+
+
+@dataclasses.dataclass(frozen=True)
+class FitParameter:
+    key: str  # vocabulary key written to identified.toml
+    transform: str  # "log" (positive) or "offset" (signed, micrometres)
+    unit: str
+    doc: str
+    prior_sigma: float  # default prior std of theta (log: relative; offset: um)
+    per_speed: bool = False
+
+
+FIT_PARAMETERS = {
+    "nut_k": FitParameter("nut.hertz_k_m_per_n23", "log", "m/N^(2/3)",
+                          "Hertz coefficient K_n of the screw-nut joint (larger = softer)", 0.5),
+    "bearing_k": FitParameter("bearing.hertz_k_m_per_n23", "log", "m/N^(2/3)",
+                              "Hertz coefficient K_b of the bearing joint (larger = softer)",
+                              0.5),
+    "nut_preload": FitParameter("nut.preload_n", "log", "N",
+                                "preload F_pn of the double nut (Hertz coefficient from the "
+                                "geometry)", 0.5),
+    "bearing_preload": FitParameter("bearing.preload_n", "log", "N",
+                                    "preload F_pb of the bearing pair (Hertz coefficient from "
+                                    "the geometry)", 0.5),
+    "screw_k": FitParameter("screw.stiffness_n_per_um", "log", "N/um", "screw stiffness k_s",
+                            0.5),
+    "c_b": FitParameter("damping.bearing_n_s_per_m", "log", "N s/m", "bearing damping c_b", 1.0),
+    "c_s": FitParameter("damping.screw_n_s_per_m", "log", "N s/m", "screw damping c_s", 1.0),
+    "c_n": FitParameter("damping.nut_n_s_per_m", "log", "N s/m", "nut-joint damping c_n", 1.0),
+    "expansion": FitParameter("thermal.expansion_per_k", "log", "1/K",
+                              "thermal expansion coefficient (scales D_n and D_b at all speeds)",
+                              0.3),
+    "d_n": FitParameter("thermal.nut_offset_um", "offset", "um",
+                        "thermal offset D_n of the nut joint, one per spindle speed", 1.0, True),
+    "d_b": FitParameter("thermal.bearing_offset_um", "offset", "um",
+                        "thermal offset D_b of the bearing joint, one per spindle speed", 1.0,
+                        True),
+}
+DEFAULT_FIT = ("nut_k", "bearing_k", "screw_k", "c_b", "c_s", "c_n", "expansion")
+PRELOAD_FIT = ("nut_preload", "bearing_preload", "c_b", "c_s", "c_n")
+# Above this joint amplitude / preload deformation the nonlinear (shooting) model is used.
+NONLINEAR_RATIO = 0.1
+# Harmonics above this fraction of the sample rate are not used (anti-alias filter phase).
+MAX_HARMONIC_FRACTION = 0.25
+# A trial point whose model is not finite (a joint without preload) costs this per entry.
+BAD_RESIDUAL = 1e6
+
+
+def parse_fit(text: str | None) -> tuple[str, ...]:
+    """'nut_k,c_n' -> ('nut_k', 'c_n'); validates names (ValueError naming the bad one)."""
+    if not text:
+        return DEFAULT_FIT
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    for n in names:
+        if n not in FIT_PARAMETERS:
+            raise ValueError(f"--fit: unknown parameter '{n}'. Choose from "
+                             f"{', '.join(FIT_PARAMETERS)}.")
+    if len(set(names)) != len(names):
+        raise ValueError(f"--fit: a name appears twice in '{text}'")
+    if "expansion" in names and ({"d_n", "d_b"} & set(names)):
+        raise ValueError("--fit: choose either 'expansion' (thermal model) or per-speed "
+                         "offsets 'd_n'/'d_b', not both")
+    for joint in ("nut", "bearing"):
+        if {f"{joint}_k", f"{joint}_preload"} <= set(names):
+            raise ValueError(f"--fit: '{joint}_k' and '{joint}_preload' set the same joint "
+                             f"stiffness (k ~ F_p^(1/3) / K); fit one of them (the preload, "
+                             f"with K from the geometry, is what wears in service)")
+    return names
+
+
+def parse_priors(text: str | None, names) -> dict:
+    """'c_n=0.3,nut_preload=1' -> {name: sigma}; the defaults for the others."""
+    sig = {n: FIT_PARAMETERS[n].prior_sigma for n in names}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        name, _, value = item.partition("=")
+        name = name.strip()
+        if name not in sig:
+            raise ValueError(f"--prior: '{name}' is not a fitted parameter ({', '.join(names)})")
+        try:
+            v = float(value)
+        except ValueError:
+            raise ValueError(f"--prior: '{item.strip()}' needs NAME=SIGMA with a number") from None
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"--prior: sigma of '{name}' must be a positive number, got {value}")
+        sig[name] = v
+    return sig
+
+
+class _Group(eqx.Module):
+    """Arrays of the records at one speed (jnp, traced data of the residual)."""
+
+    lin_freq: jax.Array  # (R, H) harmonic frequencies
+    lin_force: jax.Array  # (R, H) complex
+    lin_acc: jax.Array  # (R, H) complex measured
+    lin_scale: jax.Array  # (R, H, 2) std of (re, im)
+    nl_freq: jax.Array  # (S,)
+    nl_force: jax.Array  # (S, H)
+    nl_acc: jax.Array
+    nl_scale: jax.Array
+    frf_freq: jax.Array  # (L,) lines of every FRF record at this speed
+    frf_acc: jax.Array  # (L,) accelerance [m/s^2 per N]
+    frf_scale: jax.Array  # (L, 2)
+
+
+_build = eqx.filter_jit(bsfs_jax.build_system)
+_linear_jit = eqx.filter_jit(linear_acceleration)
+_receptance_jit = eqx.filter_jit(receptance)
+
+
+def is_frf(d) -> bool:
+    return hasattr(d, "accelerance")
+
+
+def joint_amplitude_ratio(system, data) -> float:
+    """Largest joint deformation amplitude / preload deformation, linear prediction (numpy).
+
+    The nonlinearity error of the linear model grows about as this ratio squared; at the
+    paper's 100 N and 100-150 Hz it is 0.04-0.05 (error ~1e-5, far below the noise). For an
+    FRF record the force level in its header is taken as the amplitude at every line (0
+    when the file does not give it).
+    """
+    if is_frf(data):
+        freq = np.asarray(data.frequency_hz)
+        force = np.full(freq.shape, float(data.force_amplitude_n or 0.0))
+        h = np.asarray(_receptance_jit(system, jnp.asarray(freq)))
+        x = h * force[:, None]
+        u_bearing, u_nut = np.max(np.abs(x[:, 0])), np.max(np.abs(x[:, 2] - x[:, 1]))
+    else:
+        h = np.asarray(_receptance_jit(system, jnp.asarray(data.frequency_hz * data.harmonics)))
+        x = h * data.force[:, None]
+        u_bearing = np.sum(np.abs(x[:, 0]))
+        u_nut = np.sum(np.abs(x[:, 2] - x[:, 1]))
+    d_nut = float(system.nut.a - system.nut.a0 - system.nut.offset)
+    d_bearing = float(system.bearing.a - system.bearing.a0 - system.bearing.offset)
+    return float(max(u_nut / d_nut, u_bearing / d_bearing))
+
+
+class Problem:
+    """A fit problem: data of the records, the prior parameter set, the parameters to fit.
+
+    `data`: `HarmonicData` (sine records) and FRF records (`FrfRecord`), any mix.
+    `model`: "auto" (per sine record: the linearised FRF where the predicted joint
+    amplitude is below `NONLINEAR_RATIO` of the preload deformation, else the nonlinear
+    periodic orbit by shooting), "linear" or "nonlinear". FRF records always use the
+    linearised model (they are the small-signal FRF by definition).
+    `priors`: {name: sigma of theta}, "default" (each parameter's `prior_sigma`) or None
+    (maximum likelihood).
+    """
+
+    def __init__(self, data, prior, fit=DEFAULT_FIT, model: str = "auto",
+                 max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default"):
+        if not data:
+            raise ValueError("no records")
+        if model not in ("auto", "linear", "nonlinear"):
+            raise ValueError(f"model must be auto, linear or nonlinear, got '{model}'")
+        self.data = list(data)
+        self.fit = tuple(fit)
+        sines = [d for d in self.data if not is_frf(d)]
+        self.max_harmonic_hz = (max_harmonic_fraction * min(d.record.sample_rate_hz
+                                                            for d in sines)
+                                if sines else np.inf)
+        for d in sines:
+            if d.frequency_hz > self.max_harmonic_hz:
+                raise ValueError(
+                    f"record '{d.record.source}': its excitation ({d.frequency_hz:.4g} Hz) is "
+                    f"above the usable band ({self.max_harmonic_hz:.4g} Hz = "
+                    f"{max_harmonic_fraction:g} x the lowest sample rate, where the "
+                    "anti-alias filter's phase is not the structure's); record it at a "
+                    f"sample rate above {d.frequency_hz / max_harmonic_fraction:.0f} Hz or "
+                    "leave it out")
+        self.speeds = sorted({d.speed_rpm for d in self.data})
+        th = prior.thermal
+        if ({"d_n", "d_b", "expansion"} & set(self.fit)) and not th.enabled:
+            raise ValueError("fitting thermal offsets needs thermal.enabled = true in the prior")
+        if "expansion" in self.fit and (th.nut_offset is not None or
+                                        th.bearing_offset is not None):
+            raise ValueError("the prior gives explicit thermal offsets, so the expansion "
+                             "coefficient has no effect; fit 'd_n,d_b' instead")
+        # Make the fitted stiffness keys explicit so that `replace` can scale them.
+        base = prior
+        if "nut_k" in self.fit:
+            base = base.replace("nut.hertz_k_m_per_n23", nut_hertz_k(prior))
+        if "bearing_k" in self.fit:
+            base = base.replace("bearing.hertz_k_m_per_n23", bearing_hertz_k(prior))
+        if "screw_k" in self.fit:
+            base = base.replace("screw.stiffness_n_per_um", screw_stiffness(prior) / 1e6)
+        self.prior = prior
+        self.base = base
+        self._expand_parameters()
+        if priors == "default":
+            priors = {n: FIT_PARAMETERS[n].prior_sigma for n in self.fit}
+        self.priors = None if priors is None else dict(priors)
+        self.prior_sigma = (None if priors is None else
+                            np.asarray([self.priors[n.split("@")[0]] for n in self.names]))
+        systems = {s: _build(base.replace("thermal.speed_rpm", s)) for s in self.speeds}
+        self.amplitude_ratios = [joint_amplitude_ratio(systems[d.speed_rpm], d)
+                                 for d in self.data]
+        self.models = ["frf" if is_frf(d) else
+                       (model if model != "auto" else
+                        ("nonlinear" if r > NONLINEAR_RATIO else "linear"))
+                       for d, r in zip(self.data, self.amplitude_ratios)]
+        self.groups, self.layout = self._build_groups(systems)
+        self._residual_jit = eqx.filter_jit(self.residual)
+        self._jac_jit = eqx.filter_jit(jax.jacfwd(self.residual))
+        both = lambda th, g: (self.residual(th, g),) * 2
+        self._rj_jit = eqx.filter_jit(jax.jacfwd(both, has_aux=True))
+
+    def rj(self, theta, groups=None):
+        """(residual, Jacobian) as numpy arrays: one compiled function for every use."""
+        j, r = self._rj_jit(jnp.asarray(theta, float), self.groups if groups is None
+                            else groups)
+        return np.asarray(r), np.asarray(j)
+
+    def _expand_parameters(self):
+        names, keys, priors, speeds = [], [], [], []
+        for n in self.fit:
+            spec = FIT_PARAMETERS[n]
+            if spec.per_speed:
+                for s in self.speeds:
+                    system = _build(self.base.replace("thermal.speed_rpm", s))
+                    v = (system.thermal.nut_offset if n == "d_n"
+                         else system.thermal.bearing_offset)
+                    names.append(f"{n}@{s:g}rpm")
+                    keys.append(spec.key)
+                    priors.append(float(v) * 1e6)
+                    speeds.append(s)
+            else:
+                names.append(n)
+                keys.append(spec.key)
+                priors.append(float(np.asarray(self.base.get(spec.key))))
+                speeds.append(None)
+        self.names = tuple(names)
+        self.keys = tuple(keys)
+        self.prior_values = np.asarray(priors)
+        self.param_speeds = tuple(speeds)
+        self.transforms = tuple(FIT_PARAMETERS[n.split("@")[0]].transform for n in names)
+        self.units = tuple(FIT_PARAMETERS[n.split("@")[0]].unit for n in names)
+
+    # -- parameters ------------------------------------------------------------------------
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    @property
+    def is_log(self) -> np.ndarray:
+        return np.asarray([t == "log" for t in self.transforms])
+
+    def values(self, theta):
+        """File-unit values for a theta vector: prior * exp(theta), or prior + theta [um]."""
+        xp = jnp if isinstance(theta, jax.Array) else np
+        log = xp.asarray(self.is_log)
+        v0 = xp.asarray(self.prior_values)
+        return xp.where(log, v0 * xp.exp(xp.where(log, theta, 0.0)), v0 + theta)
+
+    def theta_of(self, values):
+        """Inverse of `values` (numpy); a non-positive value of a log-parameter raises."""
+        v = np.asarray(values, float)
+        log = self.is_log
+        if np.any(log & ~(v > 0)):
+            raise ValueError(f"values {v} must be positive for the log-parameters")
+        return np.where(log, np.log(np.where(log, v, 1.0) / np.where(log, self.prior_values,
+                                                                      1.0)),
+                        v - self.prior_values)
+
+    def params_at(self, theta, speed):
+        """Full `BallScrewParams` at `speed` for the fitted theta (traceable)."""
+        values = self.values(theta)
+        p = self.base.replace("thermal.speed_rpm", speed)
+        for i, (key, s) in enumerate(zip(self.keys, self.param_speeds)):
+            if s is None or s == speed:
+                p = p.replace(key, values[i])
+        return p
+
+    # -- data ------------------------------------------------------------------------------
+    def _build_groups(self, prior_sys):
+        from ._groups import build_groups
+
+        return build_groups(self, prior_sys)
+
+    # -- model and residual ----------------------------------------------------------------
+    def predict(self, theta, groups=None):
+        """Model accelerations per group: list of (linear (R,H), nonlinear (S,H), FRF (L,))."""
+        groups = self.groups if groups is None else groups
+        out = []
+        for s, g in zip(self.speeds, groups):
+            system = bsfs_jax.build_system(self.params_at(theta, s))
+            lin = (linear_acceleration(system, g.lin_freq, g.lin_force)
+                   if g.lin_freq.shape[0] else jnp.zeros((0, g.lin_freq.shape[1]), complex))
+            if g.nl_freq.shape[0]:
+                fn = lambda f, fc: nonlinear_acceleration(system, f, fc)
+                nl, ok = jax.vmap(fn)(g.nl_freq, g.nl_force)
+                nl = jnp.where(ok[:, None], nl, jnp.inf)
+            else:
+                nl = jnp.zeros((0, g.nl_force.shape[1]), complex)
+            frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
+                   if g.frf_freq.shape[0] else jnp.zeros(0, complex))
+            out.append((lin, nl, frf))
+        return out
+
+    def data_residual(self, theta, groups=None):
+        """Noise-weighted data residual (dimensionless; about N(0, 1) at the truth)."""
+        groups = self.groups if groups is None else groups
+        parts = []
+        for preds, g in zip(self.predict(theta, groups), groups):
+            pairs = ((g.lin_acc, g.lin_scale), (g.nl_acc, g.nl_scale), (g.frf_acc, g.frf_scale))
+            for model, (meas, scale) in zip(preds, pairs):
+                d = meas - model
+                d = jnp.where(jnp.isfinite(d), d, BAD_RESIDUAL)
+                parts.append((jnp.real(d) / scale[..., 0]).reshape(-1))
+                parts.append((jnp.imag(d) / scale[..., 1]).reshape(-1))
+        return jnp.concatenate(parts)
+
+    def residual(self, theta, groups=None):
+        """Data residual followed by the prior's entries theta / sigma (when priors are on)."""
+        r = self.data_residual(theta, groups)
+        if self.prior_sigma is None:
+            return r
+        return jnp.concatenate([r, theta / jnp.asarray(self.prior_sigma)])
+
+    @property
+    def n_data(self) -> int:
+        return int(self.used_mask().size)
+
+    def used_mask(self):
+        """Data-residual entries that carry data (False: harmonics left out)."""
+        parts = []
+        for g in self.groups:
+            for scale in (g.lin_scale, g.nl_scale, g.frf_scale):
+                parts.append(np.isfinite(np.asarray(scale[..., 0])).reshape(-1))
+                parts.append(np.isfinite(np.asarray(scale[..., 1])).reshape(-1))
+        return np.concatenate(parts)
+
+    def record_slices(self):
+        """For each record (in data order) the indices of its entries in the residual."""
+        return [self.layout[i][2] for i in range(len(self.data))]
+
+    def model_harmonics(self, theta):
+        """Model accelerations per record in data order (numpy): harmonics or FRF lines."""
+        preds = self.predict(jnp.asarray(theta))
+        out = []
+        for i in range(len(self.data)):
+            gi, kind, _, row = self.layout[i]
+            arr = np.asarray(preds[gi][kind])
+            out.append(arr[row] if kind < 2 else arr[row])
+        return out

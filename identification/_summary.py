@@ -1,0 +1,118 @@
+"""The identification's text summary: every number once, each with what it rests on."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._problem import is_frf
+from ._uncertainty import IDENTIFIABLE_STD
+
+
+def _record_line(data) -> str:
+    parts = []
+    for d in data[:6]:
+        if is_frf(d):
+            f = np.asarray(d.frequency_hz)
+            parts.append(f"{d.excitation} FRF {f.min():.4g}-{f.max():.4g} Hz/{d.speed_rpm:g} rpm")
+        else:
+            parts.append(f"{d.frequency_hz:.4g} Hz/{d.record.force_amplitude_n:g} N/"
+                         f"{d.speed_rpm:g} rpm")
+    return ", ".join(parts) + (" ..." if len(data) > 6 else "")
+
+
+def _fmt_ci(lo, hi) -> str:
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "not determined"
+    return f"[{lo:.4g}, {hi:.4g}]"
+
+
+def preload_verdicts(res) -> list[str]:
+    """One line per fitted preload: the change from nominal and whether it is significant."""
+    from ._report import parameter_rows
+
+    lines = []
+    for name, row in parameter_rows(res).items():
+        if not name.endswith("_preload"):
+            continue
+        joint = name.split("_")[0]
+        change = 100.0 * row["change_from_prior"]
+        if not row["identified"]:
+            lines.append(f"{joint} preload: not determined by these records, so a loss cannot "
+                         "be judged (run `bsfs plan-test --fit nut_preload,bearing_preload`)")
+            continue
+        lo, hi = row["ci95"]
+        if row["differs_from_prior"]:
+            word = "LOSS" if change < 0 else "INCREASE"
+            lines.append(f"{joint} preload: {row['value']:.0f} N vs nominal {row['prior']:.0f} "
+                         f"N ({change:+.0f} %, 95 % interval {lo:.0f}-{hi:.0f} N): significant "
+                         f"{word} (the nominal value is outside the interval)")
+        else:
+            lines.append(f"{joint} preload: {row['value']:.0f} N vs nominal {row['prior']:.0f} "
+                         f"N ({change:+.0f} %, 95 % interval {lo:.0f}-{hi:.0f} N): no "
+                         "significant change")
+    return lines
+
+
+def summary_text(res) -> str:
+    pb, fr, u = res.problem, res.fit, res.uncertainty
+    synth = any(str((d.meta if is_frf(d) else d.record.meta).get("synthetic", "")).lower()
+                == "true" for d in res.data)
+    kinds = {k: sum(m == k for m in pb.models) for k in ("linear", "nonlinear", "frf")}
+    lines = [f"Identification from {len(res.data)} record(s)"
+             f"{' (SYNTHETIC data)' if synth else ''}: {_record_line(res.data)}",
+             f"Model: linearised FRF for {kinds['linear']} sine record(s), periodic orbit "
+             f"(shooting) for {kinds['nonlinear']}, {kinds['frf']} FRF record(s); "
+             + ("maximum a posteriori with priors (sigma in the table)" if pb.priors is not None
+                else "maximum likelihood (no priors)") + f"; {res.seconds:.1f} s.",
+             f"Fit {fr.convergence_text}; {fr.steps} iterations.",
+             f"Noise: {u.noise['text']}.", ""]
+    head = f"{'parameter':<18}{'value':>11}{'std':>10}   {'95% interval':<24}{'unit':<11}"
+    head += "prior (sigma)       " if pb.priors is not None else ""
+    lines.append(head + "status")
+    for i, name in enumerate(pb.names):
+        lo, hi = u.ci95[i]
+        std = f"{u.std[i]:.3g}" if np.isfinite(u.std[i]) else "-"
+        ci = _fmt_ci(lo, hi) + ("*" if u.ci_method[i] == "profile" else "")
+        row = f"{name:<18}{u.values[i]:>11.4g}{std:>10}   {ci:<24}{pb.units[i]:<11}"
+        if pb.priors is not None:
+            sig = (f"x/{np.exp(u.prior_sigma[i]):.2g}" if pb.is_log[i]
+                   else f"+-{u.prior_sigma[i]:.2g}")
+            row += f"{pb.prior_values[i]:.4g} ({sig})".ljust(20)
+        status = u.status(i)
+        row += status.upper() if status != "determined by the data" else status
+        lines.append(row)
+    if "profile" in u.ci_method:
+        lines.append("* profile-likelihood interval (the linearised one was doubtful)")
+    lines.append("")
+    for speed, c in u.compliance.items():
+        ok = c["relative_std"] < IDENTIFIABLE_STD
+        lines.append(f"Series (static) compliance at {speed} rpm: {c['compliance_nm_per_n']:.5g}"
+                     f" +- {c['std_nm_per_n']:.2g} nm/N ({100 * c['relative_std']:.2g} %), "
+                     f"i.e. stiffness {c['stiffness_n_per_um']:.4g} N/um"
+                     + (" - determined by the data" if ok else " - not determined"))
+    ident = u.identifiable()
+    lines.append(f"Combinations the records alone determine ({sum(ident)} of {len(ident)}; "
+                 f"standard error < {IDENTIFIABLE_STD:g} in log-value or um):")
+    for i in np.nonzero(ident)[0]:
+        lines.append(f"  [{u.direction_std[i]:.2g}] {u.combination_text(i)}")
+    lines += preload_verdicts(res)
+    n_det = int(np.sum(u.determined))
+    if n_det == 0:
+        comp = [c for c in u.compliance.values() if c["relative_std"] < IDENTIFIABLE_STD]
+        what = (f"the {sum(ident)} combination(s) listed above (the series compliance "
+                "among them)" if comp else f"the {sum(ident)} combination(s) listed above")
+        lines.append(f"=> No single parameter is determined by these records: they determine "
+                     f"{what}, so every fitted parameter is "
+                     + ("prior-dominated (its value is the prior's, moved only as far as those "
+                        "combinations need)" if pb.priors is not None else "undetermined")
+                     + ". Run `bsfs plan-test` for a test that separates them.")
+    elif n_det < pb.n_params:
+        rest = [n for i, n in enumerate(pb.names) if not u.determined[i]]
+        lines.append(f"=> {n_det} of {pb.n_params} parameters determined by the data; "
+                     f"{', '.join(rest)} rest on the prior.")
+    else:
+        lines.append(f"=> All {pb.n_params} parameters are determined by the data.")
+    if not fr.converged:
+        lines.append("=> WARNING: the fit did not converge; treat every value above as "
+                     "provisional (raise --max-steps or --starts).")
+    return "\n".join(lines)
