@@ -31,11 +31,16 @@ PLAN += [("stepped-sine", f"sine_{f:04d}hz_3000n_2000rpm", float(f), 3000.0, 200
          for f in (150, 300)]
 PLAN += [("stepped-sine", f"sine_{f:04d}hz_100n_{rpm}rpm", float(f), 100.0, float(rpm), 0.5)
          for rpm in (1000, 3000) for f in (150, 950)]
+# The worn drive (data/worn.toml): a few stepped sines away from the resonance and one
+# low-level chirp through it (the preload-loss diagnosis example).
+WORN = [("preload-loss", f"sine_{f:04d}hz_100n", float(f), 100.0, 2000.0, 0.5)
+        for f in (150, 400, 700, 1700, 2500)]
+CHIRP = ("preload-loss", "chirp_50-2500hz_5n", 5.0, 2000.0, 1.0, 50.0, 2500.0)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["paper-test", "stepped-sine"])
+    ap.add_argument("--only", choices=["paper-test", "stepped-sine", "preload-loss"])
     args = ap.parse_args(argv)
     truth = bsfs_jax.load_params(HERE / "truth.toml")
     for seed, (group, stem, f, force, rpm, dur) in enumerate(PLAN):
@@ -46,6 +51,23 @@ def main(argv=None):
         rec.meta["source"] = "synthetic: data/generate.py from data/truth.toml"
         path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
         print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+    if args.only not in (None, "preload-loss"):
+        return
+    worn = bsfs_jax.load_params(HERE / "worn.toml")
+    (HERE / "preload-loss").mkdir(exist_ok=True)
+    for seed, (group, stem, f, force, rpm, dur) in enumerate(WORN):
+        rec = synthesize(worn.replace("thermal.speed_rpm", rpm), f, force, duration_s=dur,
+                         sample_rate_hz=FS, seed=2000 + seed)
+        rec.meta["source"] = "synthetic: data/generate.py from data/worn.toml"
+        path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
+        print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+    group, stem, force, rpm, dur, start, stop = CHIRP
+    rec = synthesize(worn.replace("thermal.speed_rpm", rpm), None, force, duration_s=dur,
+                     sample_rate_hz=FS, seed=2100, excitation="chirp", start_hz=start,
+                     stop_hz=stop)
+    rec.meta["source"] = "synthetic: data/generate.py from data/worn.toml"
+    path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
+    print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
 
 
 if __name__ == "__main__":

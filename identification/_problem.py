@@ -184,7 +184,8 @@ class Problem:
     """
 
     def __init__(self, data, prior, fit=DEFAULT_FIT, model: str = "auto",
-                 max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default"):
+                 max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default",
+                 nonlinear_ratio: float = NONLINEAR_RATIO):
         if not data:
             raise ValueError("no records")
         if model not in ("auto", "linear", "nonlinear"):
@@ -233,13 +234,14 @@ class Problem:
                                  for d in self.data]
         self.models = ["frf" if is_frf(d) else
                        (model if model != "auto" else
-                        ("nonlinear" if r > NONLINEAR_RATIO else "linear"))
+                        ("nonlinear" if r > nonlinear_ratio else "linear"))
                        for d, r in zip(self.data, self.amplitude_ratios)]
         self.groups, self.layout = self._build_groups(systems)
         self._residual_jit = eqx.filter_jit(self.residual)
         self._jac_jit = eqx.filter_jit(jax.jacfwd(self.residual))
         both = lambda th, g: (self.residual(th, g),) * 2
         self._rj_jit = eqx.filter_jit(jax.jacfwd(both, has_aux=True))
+        self._predict_jit = eqx.filter_jit(self.predict)
 
     def rj(self, theta, groups=None):
         """(residual, Jacobian) as numpy arrays: one compiled function for every use."""
@@ -372,7 +374,7 @@ class Problem:
 
     def model_harmonics(self, theta):
         """Model accelerations per record in data order (numpy): harmonics or FRF lines."""
-        preds = self.predict(jnp.asarray(theta))
+        preds = self._predict_jit(jnp.asarray(theta, float))
         out = []
         for i in range(len(self.data)):
             gi, kind, _, row = self.layout[i]

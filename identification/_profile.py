@@ -4,7 +4,10 @@ Check. If the cost were quadratic, moving parameter i by t of its standard error
 others follow their conditional optimum (the path theta_hat + t C e_i / sigma_i) would
 raise 2 x cost by exactly t^2. The cost is evaluated on that path at t = +-1.96; where it
 rises by less than 3.84 (1 - `LINEAR_TOL`) or more than 3.84 (1 + `LINEAR_TOL`), the
-linearised interval is doubtful on that side.
+linearised interval is doubtful on that side. (The path is only the first-order guess of
+the conditional optimum: where the valley curves, the path's cost rises faster than the
+profile's.) So a doubtful side is checked with the profile itself at t = 1.96 (below), and
+only where that too is off by more than `LINEAR_TOL` is the interval's end searched.
 
 Profile. For a doubtful parameter the others are re-optimised with theta_i held (the same
 host-side Levenberg-Marquardt as the fit, on the same compiled residual and Jacobian),
@@ -59,8 +62,8 @@ def linearity_check(result, unc: Uncertainty) -> np.ndarray:
     return out
 
 
-def _profile_end(pb, result, unc, i, sign):
-    """t > 0 where the profile's rise reaches 3.84 on side `sign`, or inf if it does not."""
+def _rise_fn(pb, result, unc, i, sign):
+    """t -> rise of the profile's 2 x cost at theta_i = theta_hat_i + sign t sigma_i."""
     base = _two_cost(pb, result.theta)
     s = unc.scaled_std[i]
     cov = unc.covariance
@@ -71,9 +74,13 @@ def _profile_end(pb, result, unc, i, sign):
         _, c = held_cost(pb, start, i, result.theta[i] + sign * t * s, rows)
         return (c - base) if np.isfinite(c) else np.inf
 
+    return rise
+
+
+def _profile_end(rise, r1):
+    """t > 0 where the profile's rise reaches 3.84 (r1 = rise at 1.96), or inf if never."""
     t0, r0 = 0.0, 0.0
     t1 = Z95
-    r1 = rise(t1)
     for _ in range(12):
         if abs(r1 - LEVEL) < 1e-3 * LEVEL:
             return t1
@@ -98,25 +105,33 @@ def _profile_end(pb, result, unc, i, sign):
 
 
 def profile_intervals(result, unc: Uncertainty, *, force: bool = False) -> tuple:
-    """(updated `Uncertainty`, linearity table (p, 2)). Profiles only the doubtful sides
-    (or every parameter with `force`)."""
+    """(updated `Uncertainty`, table (p, 2) of the profile's rise at -+1.96 sigma / 3.84).
+
+    Sides whose conditional-path rise is within `LINEAR_TOL` of 3.84 keep the linearised
+    end (table: the path's rise); the others get the held profile at 1.96 sigma, and where
+    that is off by more than `LINEAR_TOL` too, the profile end replaces the linearised one.
+    `force`: profile every side.
+    """
     pb = result.problem
-    lin = linearity_check(result, unc)
-    doubtful = ~(np.abs(lin - 1.0) <= LINEAR_TOL)
-    doubtful &= np.isfinite(unc.scaled_std)[:, None]
-    if force:
-        doubtful = np.repeat(np.isfinite(unc.scaled_std)[:, None], 2, 1)
-    if not np.any(doubtful) or not unc.noise["estimable"]:
-        return unc, lin
+    table = linearity_check(result, unc)
+    finite = np.isfinite(unc.scaled_std)
+    if not unc.noise["estimable"]:
+        return unc, table
     ci = unc.ci95.copy()
     method = list(unc.ci_method)
     determined = unc.determined.copy()
     log = pb.is_log
-    for i in np.nonzero(np.any(doubtful, axis=1))[0]:
+    for i in np.nonzero(finite)[0]:
         for k, sign in enumerate((-1.0, 1.0)):
-            if not doubtful[i, k]:
+            if not force and abs(table[i, k] - 1.0) <= LINEAR_TOL:
                 continue
-            t = _profile_end(pb, result, unc, i, sign)
+            rise = _rise_fn(pb, result, unc, i, sign)
+            r1 = rise(Z95)
+            table[i, k] = r1 / LEVEL
+            if not force and abs(table[i, k] - 1.0) <= LINEAR_TOL:
+                continue
+            t = _profile_end(rise, r1)
+            method[i] = "profile"
             if not np.isfinite(t):
                 ci[i, k] = 0.0 if log[i] and sign < 0 else sign * np.inf
                 determined[i] = False
@@ -124,5 +139,4 @@ def profile_intervals(result, unc: Uncertainty, *, force: bool = False) -> tuple
             th = result.theta[i] + sign * t * unc.scaled_std[i]
             ci[i, k] = (pb.prior_values[i] * np.exp(th) if log[i]
                         else pb.prior_values[i] + th)
-        method[i] = "profile"
-    return dataclasses.replace(unc, ci95=ci, ci_method=method, determined=determined), lin
+    return dataclasses.replace(unc, ci95=ci, ci_method=method, determined=determined), table

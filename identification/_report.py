@@ -60,12 +60,14 @@ def measurement_data(record):
 
 def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
              starts: int = 3, seed: int = 0, max_steps: int = 100, priors="default",
-             profile: bool = True) -> IdentificationResult:
+             profile="auto") -> IdentificationResult:
     """Load records (paths or loaded records), fit, and compute the uncertainty.
 
     `priors`: "default" (each parameter's default prior, see `FIT_PARAMETERS`), a dict
     {name: sigma} or None (maximum likelihood). `profile`: profile-likelihood intervals
-    where the linearised ones are doubtful.
+    where the linearised ones are doubtful (True), never (False), or "auto": when every
+    record uses a linear model (with periodic-orbit records each profile point costs a
+    re-fit of orbits; the report then says the check was skipped).
     """
     from ._records import load_records
 
@@ -79,6 +81,12 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     result = fit(problem, starts=starts, seed=seed, max_steps=max_steps)
     unc = uncertainty(result)
     lin = None
+    if profile == "auto":
+        profile = "nonlinear" not in problem.models
+        unc.noise["profile"] = ("checked" if profile else "skipped: records use the periodic "
+                                "orbit model (identify(profile=True) or --profile on)")
+    else:
+        unc.noise["profile"] = "checked" if profile else "skipped (profile off)"
     if profile:
         unc, lin = profile_intervals(result, unc)
     return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin)

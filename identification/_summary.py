@@ -83,6 +83,9 @@ def summary_text(res) -> str:
         lines.append(row)
     if "profile" in u.ci_method:
         lines.append("* profile-likelihood interval (the linearised one was doubtful)")
+    if str(u.noise.get("profile", "")).startswith("skipped"):
+        lines.append(f"Intervals are linearised; the profile-likelihood check was "
+                     f"{u.noise['profile']}.")
     lines.append("")
     for speed, c in u.compliance.items():
         ok = c["relative_std"] < IDENTIFIABLE_STD

@@ -110,8 +110,12 @@ def _record_dof(problem) -> list[str]:
     bad = []
     for d in problem.data:
         if is_frf(d):
-            if int(getattr(d, "n_averages", 0) or 0) < 2 and d.meta.get("variance") != "file":
-                bad.append(f"{d.name} ({d.n_averages} average)")
+            # Welch estimates carry their degrees of freedom (averages - 1); a single-frame
+            # chirp estimate takes its noise from +-25 neighbouring lines; a file's FRF
+            # states its standard errors (or coherence and averages; the loader insists).
+            dof = float(d.meta.get("variance_dof", MIN_RECORD_DOF))
+            if dof < 1:
+                bad.append(f"{d.name} (its FRF variances rest on {dof:g} degrees of freedom)")
         elif d.n_samples - (2 * d.harmonics.size + 1) * 3 < MIN_RECORD_DOF:
             bad.append(f"{d.name} ({d.n_samples} samples)")
     return bad

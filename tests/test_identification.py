@@ -241,6 +241,58 @@ def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_pr
         assert c - 2 * res.cost == pytest.approx(3.84, abs=0.05)
 
 
+def test_maximum_likelihood_names_the_undetermined_without_an_interval(paper_problem):
+    pb = idn.Problem(paper_problem.data, bsfs_jax.preset(), priors=None)
+    res = idn.fit(pb, starts=1)
+    u = idn.uncertainty(res)
+    assert res.converged  # on the informative directions; the rest has no step at all
+    undetermined = ~u.determined
+    assert undetermined.sum() >= 4
+    assert np.all(np.isnan(u.ci95[~np.isfinite(u.scaled_std)]))
+    assert u.status(int(np.nonzero(undetermined)[0][0])) == "not determined"
+
+
+@pytest.fixture(scope="module")
+def preload_run(cli_run, tmp_path_factory):
+    from bsfs_jax.cli import main
+
+    out = tmp_path_factory.mktemp("preload")
+    assert main(["identify", "--data", "preload-loss", "--fit", ",".join(idn.PRELOAD_FIT),
+                 "--compare", str(cli_run[0]), "--starts", "2", "--out", str(out)]) == 0
+    return out, json.loads((out / "report.json").read_text())
+
+
+def test_preload_loss_is_diagnosed_from_sines_and_a_chirp(preload_run):
+    out, report = preload_run
+    worn = bsfs_jax.load_params(idn.DATA_DIR / "worn.toml")
+    assert report["fit"]["converged"] and report["noise"]["checked"]
+    assert not report["noise"]["model_error"]
+    assert {r["excitation"] for r in report["records"]} == {"sine", "chirp"}
+    for name, row in report["parameters"].items():
+        assert row["identified"], name
+        truth = float(worn.get(row["key"]))
+        assert abs(np.log(row["value"] / truth)) < 3 * row["relative_std"], name
+    for name in ("nut_preload", "bearing_preload"):
+        row = report["parameters"][name]
+        assert row["differs_from_prior"] and row["value"] < 0.85 * row["prior"]
+    assert report["summary"].count("significant LOSS") == 2
+    assert "NOT DETERMINED" not in (out / "identified.toml").read_text()
+    for name in ("compare.png", "frf_fit.png", "fit.png"):
+        assert (out / name).stat().st_size > 0
+
+
+def test_plan_test_recommends_sines_and_a_chirp_for_the_preloads():
+    plans = {p.name: p for p in idn.candidate_plans()}
+    chosen = [plans[n] for n in ("paper: 100/120/150 Hz, 100 N, 1 speed",
+                                 "chirp 50-2500 Hz, 5 N, 1 s",
+                                 "5 sines off resonance + chirp 50-2500 Hz")]
+    result = idn.plan_test(bsfs_jax.preset(), idn.PRELOAD_FIT, plans=chosen)
+    assert result["recommended"] == "5 sines off resonance + chirp 50-2500 Hz"
+    paper, chirp, both = result["plans"]
+    assert not paper["all_identified"] and not chirp["all_identified"]
+    assert both["expected_std"]["nut_preload"] < 0.01
+
+
 def test_identified_toml_round_trips_to_simulate(cli_run, paper_data, tmp_path):
     from bsfs_jax.cli import main
 

@@ -126,6 +126,17 @@ def tolerance(text: str) -> float:
     return value
 
 
+def snr_db(text: str) -> float:
+    """argparse type: a sensor signal-to-noise ratio in dB, 0 to 120 (below 0 the noise
+    exceeds the signal; above 120 dB no real sensor chain reaches)."""
+    import argparse
+
+    value = finite_float(text)
+    if not 0.0 <= value <= 120.0:
+        raise argparse.ArgumentTypeError(f"a signal-to-noise ratio from 0 to 120 dB, got '{text}'")
+    return value
+
+
 def count(low: int, high: int):
     """argparse type: a whole number in [low, high] (the upper end keeps an absurd value
     from allocating or running for days before anything is written)."""

@@ -6,10 +6,11 @@ import time
 from ._common import (
     CLIError,
     add_params_args,
-    finite_float,
+    count,
     load_params_from_args,
     out_dir,
     save_figure,
+    snr_db,
     write_json,
 )
 
@@ -41,15 +42,20 @@ def register(sub) -> None:
     p.add_argument("--no-priors", action="store_true",
                    help="maximum likelihood: no priors (undetermined parameters are then "
                    "reported without an interval)")
-    p.add_argument("--no-profile", action="store_true",
-                   help="skip profile-likelihood intervals where the linearised ones are "
-                   "doubtful")
+    p.add_argument("--profile", choices=["auto", "on", "off"], default="auto",
+                   help="profile-likelihood intervals where the linearised ones are doubtful "
+                   "(auto: when every record uses a linear model; with periodic-orbit "
+                   "records each profile point re-fits the orbits)")
+    p.add_argument("--compare", metavar="DIR",
+                   help="an earlier `bsfs identify --out DIR`: draw compare.png, the two "
+                   "identifications side by side")
     p.add_argument("--model", choices=["auto", "linear", "nonlinear"], default="auto",
                    help="steady-state model per sine record (auto: linear FRF at small "
                    "amplitude, shooting otherwise)")
-    p.add_argument("--starts", type=int, default=3, help="multi-start count (3)")
-    p.add_argument("--max-steps", type=int, default=100, help="LM iterations per start (100)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--starts", type=count(1, 100), default=3, help="multi-start count (3)")
+    p.add_argument("--max-steps", type=count(1, 100_000), default=100,
+                   help="LM iterations per start (100)")
+    p.add_argument("--seed", type=count(0, 2**32 - 1), default=0)
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -60,8 +66,11 @@ def register(sub) -> None:
                        "for candidate test plans and recommend one.")
     add_params_args(t)
     t.add_argument("--fit", metavar="NAME,...", default=None)
-    t.add_argument("--noise-db", type=finite_float, default=35.0, metavar="DB",
+    t.add_argument("--noise-db", type=snr_db, default=35.0, metavar="DB",
                    help="accelerometer SNR (35 dB); force sensor +5 dB")
+    t.add_argument("--all-plans", action="store_true",
+                   help="also a plan with 3000 N records (its Fisher information needs the "
+                   "periodic-orbit model: about a minute more)")
     t.add_argument("--out", required=True, metavar="DIR")
     t.set_defaults(func=run_plan)
 
@@ -82,16 +91,13 @@ def run_identify(args) -> int:
 
     prior = load_params_from_args(args)
     names = _fit_names(args.fit)
-    for flag in ("starts", "max_steps"):
-        if getattr(args, flag) < 1:
-            raise CLIError(f"--{flag.replace('_', '-')} must be at least 1, got "
-                           f"{getattr(args, flag)}")
     if args.no_priors and args.prior:
         raise CLIError("--prior and --no-priors contradict each other; give one")
     try:
         priors = None if args.no_priors else idn.parse_priors(args.prior, names)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
+    earlier = _read_report(args.compare) if args.compare else None
     records = args.records or [str(p) for p in idn.bundled_records(args.data)]
     if not args.records:
         print(f"bsfs identify: no records named; using the bundled SYNTHETIC data set "
@@ -101,7 +107,7 @@ def run_identify(args) -> int:
     try:
         res = idn.identify(records, prior, names, model=args.model, starts=args.starts,
                            seed=args.seed, max_steps=args.max_steps, priors=priors,
-                           profile=not args.no_profile)
+                           profile={"auto": "auto", "on": True, "off": False}[args.profile])
     except (idn.RecordError, ValueError) as exc:
         raise CLIError(str(exc)) from None
     report = idn.report_dict(res)
@@ -125,6 +131,8 @@ def run_identify(args) -> int:
                              [d.name for d, _ in frfs])
         save_figure(fig, out / "frf_fit.png")
         written.append(out / "frf_fit.png")
+    if earlier is not None:
+        written.append(_compare(earlier, report, out))
     u = res.uncertainty
     fig2 = correlation_figure(res.problem.names, u.correlation, u.singular_values,
                               u.direction_std, 0.1)
@@ -138,6 +146,37 @@ def run_identify(args) -> int:
     return 0 if res.fit.converged else 4
 
 
+def _read_report(other_dir):
+    import json
+    from pathlib import Path
+
+    path = Path(other_dir) / "report.json"
+    try:
+        other = json.loads(path.read_text())
+        _title(other)
+        return other
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise CLIError(f"--compare: cannot read '{path}' as a `bsfs identify` report "
+                       f"({exc.__class__.__name__}); give the --out folder of an earlier "
+                       "identify run") from None
+
+
+def _compare(other, report, out):
+    from ..plotting import identification_comparison_figure
+
+    panels = [(_title(other), other["parameters"]), (_title(report), report["parameters"])]
+    save_figure(identification_comparison_figure(panels), out / "compare.png")
+    return out / "compare.png"
+
+
+def _title(report) -> str:
+    recs = report.get("records", [])
+    kinds = sorted({r.get("excitation", "sine") for r in recs})
+    n_det = sum(bool(p["identified"]) for p in report["parameters"].values())
+    return (f"{len(recs)} record(s) ({', '.join(kinds)}): {n_det} of "
+            f"{len(report['parameters'])} parameters determined")
+
+
 def run_plan(args) -> int:
     import identification as idn
 
@@ -147,8 +186,8 @@ def run_plan(args) -> int:
     names = _fit_names(args.fit)
     out = out_dir(args.out)
     try:
-        result = idn.plan_test(prior, names, accel_snr_db=args.noise_db,
-                               force_snr_db=args.noise_db + 5.0)
+        result = idn.plan_test(prior, names, idn.candidate_plans(args.all_plans),
+                               accel_snr_db=args.noise_db, force_snr_db=args.noise_db + 5.0)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
     write_json(out / "plan.json", result)

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ._common import CLIError, add_params_args, finite_float, load_params_from_args
+from ._common import CLIError, add_params_args, finite_float, load_params_from_args, snr_db
 
 
 def register(sub) -> None:
@@ -25,7 +25,7 @@ def register(sub) -> None:
                    help="force amplitude (sine, chirp) or RMS (random)")
     s.add_argument("--speed", type=finite_float, metavar="RPM",
                    help="spindle speed (thermal chain)")
-    s.add_argument("--noise-db", type=finite_float, default=35.0, metavar="DB",
+    s.add_argument("--noise-db", type=snr_db, default=35.0, metavar="DB",
                    help="accelerometer SNR in dB (35); the force sensor gets +5 dB")
     s.add_argument("--duration", type=finite_float, default=2.0, metavar="S",
                    help="record length (2); a chirp sweeps over all of it")

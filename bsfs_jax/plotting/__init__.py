@@ -6,6 +6,7 @@ from ._analysis import plot_response as plot_response
 from ._analysis import plot_waterfall as plot_waterfall
 from ._atlas import plot_atlas_amplitude as plot_atlas_amplitude
 from ._atlas import plot_atlas_motion as plot_atlas_motion
+from ._compare import identification_comparison_figure as identification_comparison_figure
 from ._continuation import plot_continuation as plot_continuation
 from ._continuation import stability_segments as stability_segments
 from ._design import optimization_summary as optimization_summary
