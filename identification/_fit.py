@@ -7,8 +7,9 @@ Jacobian: in the SVD J = U S V^T, the step's component along v_k is (U^T r)_k / 
 its standard error is 1 / s_k, so |(U^T r)_k| is the remaining step in units of its own
 standard error. The fit is called converged when that is below `STEP_TOL` (1 %) in every
 direction the data or prior determine and the starts that reached the lowest cost agree.
-Directions with no information at all (maximum likelihood on a rank-deficient problem)
-have no step and are reported as not determined by the uncertainty analysis.
+Without priors, directions with no usable information (standard error above
+`_lm.NO_INFORMATION_STD`) have no meaningful step; they are left out of the test and their
+parameters are reported as not determined by the uncertainty analysis.
 """
 
 from __future__ import annotations
@@ -18,11 +19,10 @@ import time
 
 import numpy as np
 
-from ._lm import gn_step_sigma, levenberg_marquardt
+from ._lm import NO_INFORMATION_STD, gn_step_sigma, levenberg_marquardt
 from ._problem import Problem
 
 STEP_TOL = 0.01  # remaining Gauss-Newton step / its standard error
-NULL_RTOL = 1e-10  # singular values below this x the largest carry no information
 SAME_COST_RTOL = 1e-6
 
 
@@ -35,7 +35,7 @@ class FitResult:
     residual: np.ndarray  # full residual (data rows, then prior rows)
     jacobian: np.ndarray
     starts: list  # dicts: start, cost, steps, optimizer_converged, same_minimum
-    converged: bool  # optimiser stopped, remaining step < STEP_TOL, starts agree
+    converged: bool  # remaining step < STEP_TOL and the starts agree
     optimizer_converged: bool
     remaining_step: float  # largest remaining GN step in units of its standard error
     steps: int
@@ -49,7 +49,7 @@ class FitResult:
                     f"of its standard error; {agree}/{len(self.starts)} starts reached the "
                     "same minimum")
         why = []
-        if not self.optimizer_converged:
+        if not self.remaining_step < STEP_TOL and not self.optimizer_converged:
             why.append(f"the optimiser stopped at its step limit ({self.steps} iterations)")
         if not self.remaining_step < STEP_TOL:
             why.append(f"the remaining Gauss-Newton step is {self.remaining_step:.2g} of its "
@@ -59,12 +59,17 @@ class FitResult:
         return "NOT converged: " + "; ".join(why or ["see the starts"])
 
 
-def remaining_step(residual, jacobian, used=None) -> float:
+def remaining_step(residual, jacobian, used=None, max_std=None) -> float:
     """Largest |(U^T r)_k| over the informative directions (see the module docstring)."""
     r, j = np.asarray(residual), np.asarray(jacobian)
     if used is not None:
         r, j = r[used], j[used]
-    return gn_step_sigma(r, j)
+    return gn_step_sigma(r, j, max_std)
+
+
+def no_information_std(problem: Problem):
+    """The standard error above which a direction counts as uninformative (None: priors)."""
+    return NO_INFORMATION_STD if problem.prior_sigma is None else None
 
 
 def full_used_mask(problem: Problem) -> np.ndarray:
@@ -87,20 +92,28 @@ def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
 
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
-        theta0=None) -> FitResult:
+        theta0=None, warm_start: bool = True) -> FitResult:
     """Fit from several starts; the lowest cost wins and every start is reported.
 
-    `theta0` replaces the prior as start 0 (e.g. a previous optimum).
+    `theta0` replaces the prior as start 0 (e.g. a previous optimum). `warm_start`: where
+    records use the periodic-orbit model, each start is first carried to the optimum of the
+    linearised problem (cheap), and the full fit starts from there.
     """
     t0 = time.perf_counter()
     points = start_points(problem, starts, seed)
     if theta0 is not None:
         points[0] = np.asarray(theta0, float)
     rows = full_used_mask(problem)
+    if warm_start and "nonlinear" in problem.models:
+        lin = problem.linearised()
+        lin_rows = full_used_mask(lin)
+        points = [levenberg_marquardt(lin.rj, th0, max_steps=max_steps, tol=0.1,
+                                      rows=lin_rows, max_std=no_information_std(problem)).theta
+                  for th0 in points]
     runs = []
     for th0 in points:
         out = levenberg_marquardt(problem.rj, th0, max_steps=max_steps, tol=0.1 * STEP_TOL,
-                                  rows=rows)
+                                  rows=rows, max_std=no_information_std(problem))
         runs.append(dict(start=problem.values(np.asarray(th0)).tolist(), result=out,
                          cost=out.cost, steps=out.steps, evaluations=out.evaluations,
                          optimizer_converged=out.converged, stop=out.reason))
@@ -110,10 +123,10 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
         run["same_minimum"] = bool(abs(run["cost"] - best["cost"])
                                    <= SAME_COST_RTOL * max(1.0, best["cost"]))
         run["theta"] = run.pop("result").theta.tolist()
-    step = remaining_step(lm.residual, lm.jacobian, rows)
+    step = remaining_step(lm.residual, lm.jacobian, rows, no_information_std(problem))
     agree = sum(run["same_minimum"] for run in runs)
-    converged = bool(best["optimizer_converged"] and step < STEP_TOL
-                     and (len(runs) == 1 or agree >= 2))
+    # The evidence at the returned point decides, not the optimiser's own stopping rule.
+    converged = bool(step < STEP_TOL and (len(runs) == 1 or agree >= 2))
     return FitResult(problem, lm.theta, np.asarray(problem.values(lm.theta)), float(lm.cost),
                      lm.residual, lm.jacobian, runs, converged,
                      bool(best["optimizer_converged"]), step, best["steps"],

@@ -22,6 +22,24 @@ import dataclasses
 
 import numpy as np
 
+#: Without priors (maximum likelihood), a direction whose standard error exceeds this (in
+#: log-value, i.e. a factor e, or um) carries no usable information: over one standard
+#: error the model is far from linear, the optimiser's steps there are meaningless, and its
+#: parameters are reported as not determined. (With priors every direction is informative:
+#: the prior bounds its standard error.) Singular values below 1e-10 x the largest are
+#: round-off in any case.
+NO_INFORMATION_STD = 1.0
+NULL_RTOL = 1e-10
+
+
+def informative(s, max_std: float | None = None) -> np.ndarray:
+    """Which singular values (descending, of a noise-weighted Jacobian) carry information."""
+    s = np.asarray(s, float)
+    if not s.size or not s[0] > 0:
+        return np.zeros(s.shape, bool)
+    floor = 0.0 if max_std is None else 1.0 / max_std
+    return s > max(s[0] * NULL_RTOL, floor)
+
 
 class _Converged(Exception):
     pass
@@ -39,19 +57,20 @@ class LMResult:
     reason: str
 
 
-def gn_step_sigma(r, j) -> float:
-    """Largest remaining Gauss-Newton step component / its standard error (SVD of J)."""
+def gn_step_sigma(r, j, max_std: float | None = None) -> float:
+    """Largest remaining Gauss-Newton step component / its standard error (SVD of J), over
+    the informative directions."""
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(j))):
         return float("inf")
     u, s, _ = np.linalg.svd(j, full_matrices=False)
-    keep = s > s[0] * 1e-10 if s.size and s[0] > 0 else np.zeros(s.shape, bool)
+    keep = informative(s, max_std)
     if not np.any(keep):
         return float("inf")
     return float(np.max(np.abs(u[:, keep].T @ r)))
 
 
 def levenberg_marquardt(rj, theta0, *, held=None, max_steps: int = 100, tol: float = 1e-3,
-                        rows=None) -> LMResult:
+                        rows=None, max_std: float | None = None) -> LMResult:
     """Minimise 0.5 |r|^2 with `rj(theta) -> (r, J)` (numpy arrays).
 
     MINPACK's Levenberg-Marquardt (`scipy.optimize.least_squares(method="lm")`, Moré's
@@ -59,6 +78,7 @@ def levenberg_marquardt(rj, theta0, *, held=None, max_steps: int = 100, tol: flo
     evaluation cached so that residual and Jacobian cost one call together.
     `held`: boolean mask of parameters kept at their `theta0` values (profile likelihood).
     `rows`: boolean mask of residual rows used for the stopping test (rows without data).
+    `max_std`: directions less certain than this are left out of the stopping test.
     `max_steps` bounds the iterations (4 x `max_steps` residual evaluations); `steps` in the
     result counts the Jacobian evaluations.
     """
@@ -98,7 +118,7 @@ def levenberg_marquardt(rj, theta0, *, held=None, max_steps: int = 100, tol: flo
         # round-off-level changes, which the ODE solver's noise never gives).
         r, j = call(z)
         jf = j[:, free]
-        if gn_step_sigma(r[sel], jf[sel]) < tol:
+        if gn_step_sigma(r[sel], jf[sel], max_std) < tol:
             done["x"] = z.copy()
             raise _Converged
         done["n"] = done.get("n", 0) + 1
@@ -116,6 +136,6 @@ def levenberg_marquardt(rj, theta0, *, held=None, max_steps: int = 100, tol: flo
     except _Converged:
         x, reason = full(done["x"]), "remaining Gauss-Newton step below tol"
     r, j = call(x[free])
-    step = gn_step_sigma(r[sel], j[sel][:, free])
+    step = gn_step_sigma(r[sel], j[sel][:, free], max_std)
     return LMResult(x, r, j, 0.5 * float(r @ r), done.get("n", 0), count[0],
                     bool(step < tol), reason)

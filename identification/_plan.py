@@ -140,8 +140,13 @@ def _planned_data(plan: TestPlan, prior, sample_rate_hz, distortion, accel_snr_d
 
 
 def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
-               force_snr_db=40.0, sample_rate_hz=10240.0, distortion=(0.04, 0.02)):
-    """(names, expected std of the scaled parameters, scaled singular values, problem)."""
+               force_snr_db=40.0, sample_rate_hz=10240.0, distortion=(0.04, 0.02),
+               nonlinear_ratio=None):
+    """(names, expected std of the scaled parameters, scaled singular values, problem).
+
+    `nonlinear_ratio`: where the periodic-orbit model replaces the linearised one (default
+    `PLAN_RATIO`; the fit's own `NONLINEAR_RATIO` reproduces a fit's models exactly).
+    """
     data = _planned_data(plan, prior, sample_rate_hz, distortion, accel_snr_db, force_snr_db)
     # The noise levels follow the predicted signal levels; the linear model is close enough
     # for that (the Jacobian below uses each record's proper model).
@@ -161,7 +166,8 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.
     # Planning accepts the linearised model up to a joint amplitude of 30 % of the preload
     # deformation (the 100 N sine at resonance): it changes the predicted standard errors by
     # a few per cent, and saves compiling the periodic-orbit model for the whole table.
-    problem = Problem(noisy, prior, fit_names, priors=None, nonlinear_ratio=PLAN_RATIO)
+    problem = Problem(noisy, prior, fit_names, priors=None,
+                      nonlinear_ratio=PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio)
     jac = problem.rj(np.zeros(problem.n_params))[1][problem.used_mask()]
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     inv = np.where(sv > sv[0] * 1e-14, 1.0 / np.maximum(sv, 1e-300) ** 2, np.inf)

@@ -192,6 +192,7 @@ class Problem:
             raise ValueError(f"model must be auto, linear or nonlinear, got '{model}'")
         self.data = list(data)
         self.fit = tuple(fit)
+        self._options = dict(max_harmonic_fraction=max_harmonic_fraction)
         sines = [d for d in self.data if not is_frf(d)]
         self.max_harmonic_hz = (max_harmonic_fraction * min(d.record.sample_rate_hz
                                                             for d in sines)
@@ -242,6 +243,12 @@ class Problem:
         both = lambda th, g: (self.residual(th, g),) * 2
         self._rj_jit = eqx.filter_jit(jax.jacfwd(both, has_aux=True))
         self._predict_jit = eqx.filter_jit(self.predict)
+
+    def linearised(self) -> Problem:
+        """The same problem with every sine record on the linearised model (a cheap start
+        for the periodic-orbit fit)."""
+        return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
+                       **self._options)
 
     def rj(self, theta, groups=None):
         """(residual, Jacobian) as numpy arrays: one compiled function for every use."""

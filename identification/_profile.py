@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from ._fit import full_used_mask
+from ._fit import full_used_mask, no_information_std
 from ._lm import levenberg_marquardt
 from ._uncertainty import Z95, Uncertainty
 
@@ -37,7 +37,8 @@ def held_cost(problem, theta_start, i, value, rows=None):
     start = np.asarray(theta_start, float).copy()
     start[i] = value
     held = np.arange(start.size) == i
-    out = levenberg_marquardt(problem.rj, start, held=held, max_steps=60, tol=1e-3, rows=rows)
+    out = levenberg_marquardt(problem.rj, start, held=held, max_steps=60, tol=1e-3, rows=rows,
+                              max_std=no_information_std(problem))
     return out.theta, 2.0 * out.cost
 
 

@@ -37,7 +37,8 @@ import numpy as np
 
 import bsfs_jax
 
-from ._fit import NULL_RTOL, FitResult
+from ._fit import FitResult
+from ._lm import NO_INFORMATION_STD, informative
 from ._measurement import receptance
 from ._problem import is_frf
 
@@ -127,7 +128,7 @@ def _data_only_std(j_d, scale):
     if not j_d.size:
         return np.full(p, np.inf)
     _, sv, vt = np.linalg.svd(j_d, full_matrices=False)
-    null = sv <= sv[0] * NULL_RTOL
+    null = ~informative(sv, NO_INFORMATION_STD)
     var = (vt.T**2 * np.where(null, 0.0, 1.0 / np.where(null, 1.0, sv) ** 2)[None, :]).sum(1)
     touched = np.any(np.abs(vt[null]) > 1e-3, axis=0) if np.any(null) else np.zeros(p, bool)
     if sv.size < p:  # fewer data than parameters: the missing directions are null too
@@ -182,7 +183,9 @@ def uncertainty(result: FitResult) -> Uncertainty:
     if prior_sigma is not None:
         info = info + np.diag(1.0 / prior_sigma**2)
     w, v = np.linalg.eigh(info)
-    null = w <= max(w[-1], 0.0) * NULL_RTOL if w.size else np.zeros(0, bool)
+    # eigenvalues of the information are squared singular values
+    max_std = NO_INFORMATION_STD if prior_sigma is None else None
+    null = ~informative(np.sqrt(np.clip(w[::-1], 0.0, None)), max_std)[::-1]
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
     info_inv = (v * inv_w[None, :]) @ v.T
     noise = _noise_check(pb, r_d, j_d, info_inv)

@@ -141,14 +141,55 @@ def _cases(tmp_path):
             ["sweep", "--param", "nut.balls", "--start", "0", "--stop", "40", "--num", "5",
              "--frequency", "1000", "--out", str(tmp_path / "o4")], 1,
             "'nut.balls' = 0 is outside the allowed range"),
+        "synth noise below 0 dB": (["synth", "--frequency", "100", "--force", "10",
+                                    "--noise-db", "-1000", "--out", str(tmp_path / "r.csv")],
+                                   2, "signal-to-noise ratio from 0 to 120 dB"),
+        "identify zero starts": (["identify", "--starts", "0", "--out", str(tmp_path / "o6")],
+                                 2, "must be a whole number from 1"),
+        "identify unknown prior": (["identify", "--prior", "c_q=1", "--out",
+                                    str(tmp_path / "o7")], 1, "is not a fitted parameter"),
+        "identify preload and hertz together": (
+            ["identify", "--fit", "nut_k,nut_preload", "--out", str(tmp_path / "o8")], 1,
+            "set the same joint stiffness"),
+        "identify compare without report": (
+            ["identify", "--compare", str(tmp_path / "nothing"), "--out",
+             str(tmp_path / "o9")], 1, "cannot read"),
+        "identify record above the band": (
+            ["identify", str(tmp_path / "hf.csv"), "--out", str(tmp_path / "o10")], 1,
+            "above the usable band"),
+        "plan-test noise above 120 dB": (["plan-test", "--noise-db", "500", "--out",
+                                         str(tmp_path / "o11")], 2, "from 0 to 120 dB"),
     }
+
+
+def _high_frequency_record(path):
+    """A 4000 Hz sine record at 10240 Hz: above the usable band (0.25 x sample rate)."""
+    import numpy as np
+
+    import identification as idn
+
+    fs, f = 10240.0, 4000.0
+    t = np.arange(4096) / fs
+    rng = np.random.default_rng(0)
+    meta = dict(frequency_hz=f, force_amplitude_n=100.0, sample_rate_hz=fs, speed_rpm=2000.0,
+                ambient_c=20.0)
+    idn.write_record_csv(path, (t, 100 * np.sin(2 * np.pi * f * t) + rng.normal(0, 1, t.size),
+                                np.sin(2 * np.pi * f * t + 1) + rng.normal(0, .01, t.size)),
+                         meta)
 
 
 @pytest.mark.parametrize("name", ["nan force", "inf frequency", "unknown solver",
                                   "binary parameter file", "empty parameter file",
                                   "output under a file", "sweep range through zero balls",
-                                  "frequency for a static metric"])
+                                  "frequency for a static metric", "synth noise below 0 dB",
+                                  "identify zero starts", "identify unknown prior",
+                                  "identify preload and hertz together",
+                                  "identify compare without report",
+                                  "identify record above the band",
+                                  "plan-test noise above 120 dB"])
 def test_named_bad_inputs_end_in_one_line(capsys, tmp_path, name):
+    if name == "identify record above the band":
+        _high_frequency_record(tmp_path / "hf.csv")
     argv, status, text = _cases(tmp_path)[name]
     try:
         rc = main(argv)
