@@ -4,6 +4,8 @@ Public API (the package uses only the public API of `bsfs_jax`):
 
 - records: `load_record`, `load_records`, `write_record_csv`, `write_record_uff`, `Record`,
   `RecordError`;
+- TDMS records (optional npTDMS, `pip install 'bsfs[tdms]'`): `load_tdms`,
+  `write_record_tdms`;
 - FRFs: `FrfRecord`, `estimate_frf` (from chirp/random records), `frf_variance`,
   `write_frf_csv`, `write_frf_uff`;
 - synthetic data: `synthesize`, `TestEffects`;
@@ -55,6 +57,8 @@ from ._summary import preload_verdicts as preload_verdicts
 from ._summary import summary_text as summary_text
 from ._synth import TestEffects as TestEffects
 from ._synth import synthesize as synthesize
+from ._tdms import load_tdms as load_tdms
+from ._tdms import write_record_tdms as write_record_tdms
 from ._uff import write_frf_uff as write_frf_uff
 from ._uff import write_record_uff as write_record_uff
 from ._uncertainty import Uncertainty as Uncertainty

@@ -9,10 +9,13 @@ values from the group's prediction.
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from ._measurement import linear_acceleration
+
+_linear_jit = eqx.filter_jit(linear_acceleration)
 
 
 def _sine_arrays(problem, idx, prior_system, h):
@@ -25,8 +28,7 @@ def _sine_arrays(problem, idx, prior_system, h):
     acc = np.stack([data[i].acceleration for i in idx])
     # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the prior
     # model's transfer (a weight only; not differentiated).
-    g = np.asarray(linear_acceleration(prior_system, jnp.asarray(freq),
-                                       jnp.ones(freq.shape, complex)))
+    g = np.asarray(_linear_jit(prior_system, jnp.asarray(freq), jnp.ones(freq.shape, complex)))
     var = (np.stack([data[i].acceleration_var for i in idx])
            + np.abs(g)[..., None] ** 2 * np.stack([data[i].force_var for i in idx]))
     # Harmonics near the anti-alias filter are left out (their phase is the filter's, not

@@ -148,9 +148,10 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.
     `PLAN_RATIO`; the fit's own `NONLINEAR_RATIO` reproduces a fit's models exactly).
     """
     data = _planned_data(plan, prior, sample_rate_hz, distortion, accel_snr_db, force_snr_db)
-    # The noise levels follow the predicted signal levels; the linear model is close enough
-    # for that (the Jacobian below uses each record's proper model).
-    first = Problem(data, prior, fit_names, model="linear", priors=None)
+    # The noise levels follow the predicted signal levels, from the same models as the
+    # Jacobian below (the harmonics of a strongly nonlinear record are the orbit's).
+    ratio = PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio
+    first = Problem(data, prior, fit_names, priors=None, nonlinear_ratio=ratio)
     acc = first.model_harmonics(np.zeros(first.n_params))
     noisy = []
     for d, a in zip(data, acc):
@@ -166,8 +167,7 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.
     # Planning accepts the linearised model up to a joint amplitude of 30 % of the preload
     # deformation (the 100 N sine at resonance): it changes the predicted standard errors by
     # a few per cent, and saves compiling the periodic-orbit model for the whole table.
-    problem = Problem(noisy, prior, fit_names, priors=None,
-                      nonlinear_ratio=PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio)
+    problem = Problem(noisy, prior, fit_names, priors=None, nonlinear_ratio=ratio)
     jac = problem.rj(np.zeros(problem.n_params))[1][problem.used_mask()]
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     inv = np.where(sv > sv[0] * 1e-14, 1.0 / np.maximum(sv, 1e-300) ** 2, np.inf)

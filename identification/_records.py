@@ -10,9 +10,9 @@ Two kinds of record:
   or estimated from a chirp/random record (both in `_frf.py`).
 
 `load_record(path)` dispatches on the extension (`.csv`: `_csv.py`; `.uff`/`.unv` UFF58:
-`_uff.py`) and on the content (`# kind = frf` in a CSV header; UFF58 function type 4). A bad
-file is refused with a `RecordError` that names the file, the line or field, and what to do;
-the loaders never drop or repair data silently.
+`_uff.py`; `.tdms`: `_tdms.py`) and on the content (`# kind = frf` in a CSV header; UFF58
+function type 4). A bad file is refused with a `RecordError` that names the file, the line
+or field, and what to do; the loaders never drop or repair data silently.
 
 Header keys of a time record (`# key = value` in CSV, `key=value` in the UFF id lines):
 
@@ -126,18 +126,20 @@ class Record:
 
 
 def load_record(path) -> Record | FrfRecord:
-    """Read and check one record (`.csv`, or `.uff`/`.unv` UFF58): a time `Record` or an
+    """Read and check one record (`.csv`, `.uff`/`.unv` UFF58 or `.tdms`): a time `Record` or an
     `FrfRecord`. Raises `RecordError`."""
     path = Path(path)
     if not path.exists():
-        raise RecordError(f"{path}: no such file. Give the path of a record (.csv or .uff).")
+        raise RecordError(f"{path}: no such file. Give the path of a record (.csv, .uff or "
+                          ".tdms).")
     if path.suffix.lower() in (".uff", ".unv"):
         from ._uff import load_uff
 
         return load_uff(path)
-    if path.suffix.lower() in (".tdms",):
-        raise RecordError(f"{path}: TDMS is not read (npTDMS is not a dependency). Export the "
-                          "channels as CSV (time_s,force_n,acceleration_m_s2) or UFF58.")
+    if path.suffix.lower() == ".tdms":
+        from ._tdms import load_tdms
+
+        return load_tdms(path)
     from ._csv import load_csv
 
     return load_csv(path)

@@ -167,7 +167,9 @@ def report_dict(res: IdentificationResult) -> dict:
     priors = (None if pb.priors is None else
               dict(kind="Gaussian on the scaled parameter (log-normal for positive values), "
                         "centred on the prior parameter set", sigma=pb.priors,
-                   determined_rule=f"posterior std <= {DETERMINED_RATIO:g} x prior std"))
+                   determined_rule=f"the records alone (no prior) give a std <= "
+                                   f"{DETERMINED_RATIO:g} x prior std and < "
+                                   f"{IDENTIFIABLE_STD:g}"))
     return dict(
         synthetic_data=synthetic,
         parameters=parameter_rows(res),
@@ -193,7 +195,8 @@ def report_dict(res: IdentificationResult) -> dict:
             iterations=fr.steps, cost=fr.cost, gradient_max=float(np.max(np.abs(grad))),
             starts=[{k: v for k, v in s.items() if k != "theta"} for s in fr.starts],
             seconds=res.seconds, fit_seconds=fr.seconds,
-            method="optimistix Levenberg-Marquardt on log-parameters (offsets in um), "
+            method="MINPACK Levenberg-Marquardt (scipy) on log-parameters (offsets in um) "
+                   "around one compiled JAX residual-and-Jacobian function, "
                    + ("maximum a posteriori with the stated priors" if pb.priors is not None
                       else "maximum likelihood (no priors)")
                    + "; forward-mode Jacobians; multi-start",

@@ -7,9 +7,11 @@ the covariance is I^-1, times s^2 where the residuals show model error (below).
 
 - **Determined or prior-dominated.** A parameter is *determined by the data* when the
   records alone, with no prior on any parameter, pin it to within half its prior standard
-  deviation (`DETERMINED_RATIO`). Otherwise it is *prior-dominated*: the records fix at
-  most combinations of it with others (the series compliance of the paper's test), and its
-  value leans on the priors. The data's share of each posterior variance is reported too.
+  deviation (`DETERMINED_RATIO`) and to better than `IDENTIFIABLE_STD` (10 %, or 0.1 um,
+  the threshold `plan-test` uses). Otherwise it is *prior-dominated*: the records fix at
+  most combinations of it with others (the series compliance of the paper's test), or fix
+  it only loosely, and its value leans on the priors. The data's share of each posterior
+  variance is reported too.
   Without priors a parameter is determined when its standard error is below
   `IDENTIFIABLE_STD` (10 %, or 0.1 um); directions without any information have infinite
   variance, and their parameters are "not determined" (no interval is printed).
@@ -206,7 +208,7 @@ def uncertainty(result: FitResult) -> Uncertainty:
     ci[~np.isfinite(scaled_std)] = np.nan
     data_std = _data_only_std(j_d, noise["scaled_by"])
     if prior_sigma is not None:
-        determined = data_std <= DETERMINED_RATIO * prior_sigma
+        determined = data_std <= np.minimum(DETERMINED_RATIO * prior_sigma, IDENTIFIABLE_STD)
         share = np.clip(1.0 - (scaled_std / prior_sigma) ** 2, 0.0, 1.0)
     else:
         determined = data_std < IDENTIFIABLE_STD

@@ -386,24 +386,38 @@ def _identify(src: Sources, v: Values):
     put = lambda name, fn: v.put(f"idf.{name}", fn, f)  # noqa: E731
     put("date", lambda: date10(d["date"]))
     put("run", lambda: "quick run" if d["quick"] else "full run")
+    # Against scipy least_squares + solve_ivp with finite differences (the same fit).
     put("speedup", lambda: sig(d["speedup"], 2))
-    put("speedup_first_call_quiet",
-        lambda: sig(d["scipy"]["wall_s"] / d["additional"]["ours_first_call_s"]))
+    put("speedup_warm", lambda: sig(d["speedup_warm"], 2))
+    put("speedup_target", lambda: sig(d["targets"]["speedup_target"]))
+    put("speedup_verdict",
+        lambda: verdict(bool(d["targets"]["100x_vs_scipy_including_compilation"])))
     put("ours_s", lambda: sig(d["ours"]["wall_s"]))
+    put("ours_warm_s", lambda: sci(d["ours"]["warm_s"]))
     put("scipy_s", lambda: sig(d["scipy"]["wall_s"]))
+    put("scipy_basis", lambda: (f"extrapolated from {integer(d['scipy']['nfev'])} residuals"
+                                if d["scipy"]["extrapolated"]
+                                else f"{integer(d['scipy']['nfev'])} residuals"))
     put("ours_iterations", lambda: integer(d["ours"]["iterations"]))
     put("fit_parameters", lambda: ", ".join(d["fit_parameters"].raw()))
     put("ours_errors", lambda: ", ".join(sci(x) for x in d["ours"]["relative_error"].raw()))
     put("scipy_errors", lambda: ", ".join(sci(x) for x in d["scipy"]["relative_error"].raw()))
+
+    def convergence(node):
+        def fn():
+            n = integer(node()["iterations"])
+            return (f"converged in {n} iterations" if node()["converged"]
+                    else f"**did not converge** in {n} iterations")
+        return fn
+
+    def determined(node):
+        return lambda: f"{integer(node()['determined'])} of {integer(node()['parameters'])}"
+
+    # `bsfs identify` on the paper test.
     e2e = lambda: d["end_to_end"]  # noqa: E731
     put("e2e_wall_s", lambda: sig(e2e()["wall_s"]))
-
-    def convergence():
-        n = integer(e2e()["iterations"])
-        return (f"converged in {n} iterations" if e2e()["converged"]
-                else f"**did not converge** in {n} iterations")
-
-    put("e2e_convergence", convergence)
+    put("e2e_convergence", convergence(e2e))
+    put("e2e_determined", determined(e2e))
 
     def compliance():
         comp = e2e()["compliance"]
@@ -411,6 +425,42 @@ def _identify(src: Sources, v: Values):
         return "/".join(sig(x, 2) for x in vals)
 
     put("compliance_rel_std_pct", compliance)
+    # `bsfs identify --data preload-loss --fit PRELOAD_FIT`.
+    pl = lambda: d["preload_loss"]  # noqa: E731
+    put("preload_wall_s", lambda: sig(pl()["wall_s"]))
+    put("preload_convergence", convergence(pl))
+    put("preload_determined", determined(pl))
+
+    def preload(node, name):
+        def fn():
+            p = node()["preloads"][name]
+            inside = "inside" if p["truth_in_ci95"] else "**outside**"
+            return (f"{sig(p['value'], 4)} ± {sig(p['std'], 2)} N (truth {sig(p['truth'], 4)} N, "
+                    f"z = {p['z']:+.1f}, {inside} the 95 % interval)")
+        return fn
+
+    for joint in ("nut", "bearing"):
+        put(f"{joint}_preload", preload(pl, f"{joint}_preload"))
+        put(f"chirp_{joint}_preload", preload(lambda: d["chirp"], f"{joint}_preload"))
+
+    def flagged():
+        pre = pl()["preloads"]
+        if pl()["both_losses_flagged"]:
+            return "both losses are flagged significant"
+        return "**not both losses are flagged significant** (" + ", ".join(
+            f"{k.split('_')[0]} {'yes' if pre[k]['significant_loss'] else 'no'}"
+            for k in pre.keys()) + ")"
+
+    put("preload_flagged", flagged)
+    # The chirp record alone, and `make demo`'s identification commands.
+    ch = lambda: d["chirp"]  # noqa: E731
+    put("chirp_lines", lambda: integer(ch()["lines"]))
+    put("chirp_cold_s", lambda: sig(ch()["seconds_cold"]))
+    put("chirp_fit_cold_s", lambda: sig(ch()["fit_seconds_cold"]))
+    put("chirp_warm_s", lambda: sig(ch()["fit_seconds_warm"]))
+    put("chirp_convergence", convergence(ch))
+    put("chirp_determined", determined(ch))
+    put("demo_s", lambda: sig(d["demo"]["total_s"]))
 
 
 def _reproduction(src: Sources, v: Values):

@@ -363,7 +363,10 @@ def test_stepped_sine_recovers_everything_within_3_sigma():
 
     _, predicted, _, _ = idn.fisher_std(plan, bsfs_jax.preset(),
                                         nonlinear_ratio=NONLINEAR_RATIO)
-    ratio = u.scaled_std / predicted
+    # The planner predicts the scatter of the estimate; the achieved linearised errors are
+    # scaled by the residuals' measured noise scale (1.12 here, not significant enough to
+    # widen the reported intervals) to compare like with like.
+    ratio = u.scaled_std * u.noise["noise_scale"] / predicted
     assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), ratio
 
 

@@ -240,10 +240,12 @@ def test_bad_chirp_header(tmp_path, change, message):
         load_record(path)
 
 
-def test_tdms_is_refused_in_one_line(tmp_path):
+def test_a_broken_tdms_file_is_refused_in_one_line(tmp_path):
+    pytest.importorskip("nptdms")
     path = _write(tmp_path, "x", name="rec.tdms")
-    with pytest.raises(RecordError, match=r"rec.tdms: TDMS is not read.*Export the channels"):
+    with pytest.raises(RecordError, match=r"rec.tdms: the TDMS file has no group") as exc:
         load_record(path)
+    assert "\n" not in str(exc.value)
 
 
 # ----------------------------------------------------------------------------- FRF files
