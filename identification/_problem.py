@@ -386,5 +386,5 @@ class Problem:
         for i in range(len(self.data)):
             gi, kind, _, row = self.layout[i]
             arr = np.asarray(preds[gi][kind])
-            out.append(arr[row] if kind < 2 else arr[row])
+            out.append(arr[row])
         return out

@@ -50,7 +50,7 @@ def _two_cost(problem, theta):
 def linearity_check(result, unc: Uncertainty) -> np.ndarray:
     """(p, 2) rise of 2 x cost at t = -1.96 and +1.96 along each parameter's path, / 3.84."""
     pb = result.problem
-    base = _two_cost(pb, result.theta)
+    base = 2.0 * result.cost  # the fit's own 2 x cost at the optimum (no re-evaluation)
     out = np.full((pb.n_params, 2), np.nan)
     cov = unc.covariance
     for i in range(pb.n_params):
@@ -65,7 +65,7 @@ def linearity_check(result, unc: Uncertainty) -> np.ndarray:
 
 def _rise_fn(pb, result, unc, i, sign):
     """t -> rise of the profile's 2 x cost at theta_i = theta_hat_i + sign t sigma_i."""
-    base = _two_cost(pb, result.theta)
+    base = 2.0 * result.cost  # the fit's own 2 x cost at the optimum (no re-evaluation)
     s = unc.scaled_std[i]
     cov = unc.covariance
     rows = full_used_mask(pb)
