@@ -10,8 +10,8 @@ Public API (the package uses only the public API of `bsfs_jax`):
   `write_frf_csv`, `write_frf_uff`;
 - synthetic data: `synthesize`, `TestEffects`;
 - measurement model: `harmonic_analysis`, `HarmonicData`;
-- fitting: `FIT_PARAMETERS`, `DEFAULT_FIT`, `PRELOAD_FIT`, `parse_fit`, `parse_priors`,
-  `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
+- fitting: `FIT_PARAMETERS`, `DEFAULT_FIT`, `PRELOAD_FIT`, `MODEL_ERROR`, `parse_fit`,
+  `parse_priors`, `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
 - uncertainty: `uncertainty`, `Uncertainty`, `profile_intervals`;
 - reports: `report_dict`, `parameter_rows`, `summary_text`, `preload_verdicts`,
   `write_identified`;
@@ -19,6 +19,7 @@ Public API (the package uses only the public API of `bsfs_jax`):
 - bundled data: `bundled_records`, `DATA_DIR`.
 """
 
+from ._choice import MODEL_ERROR as MODEL_ERROR
 from ._csv import write_frf_csv as write_frf_csv
 from ._csv import write_record_csv as write_record_csv
 from ._fit import FitResult as FitResult

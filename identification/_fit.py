@@ -40,6 +40,11 @@ class FitResult:
     remaining_step: float  # largest remaining GN step in units of its standard error
     steps: int
     seconds: float
+    # How the models per record (and left-out chirp lines) were decided: "prior" (fixed by
+    # the caller), "confirmed" (the choice at the estimate is the one fitted), "refitted"
+    # (it differed; the fit was repeated with the choice at the estimate, then confirmed),
+    # "unsettled" (it still changed after the repeat).
+    model_choice: str = "prior"
 
     @property
     def convergence_text(self) -> str:
@@ -56,6 +61,10 @@ class FitResult:
                        f"standard error (needs < {STEP_TOL:g})")
         if len(self.starts) > 1 and agree < 2:
             why.append(f"only {agree} of {len(self.starts)} starts reached the lowest cost")
+        if self.model_choice == "unsettled":
+            why.append("the choice of model per record still changed at the estimate after a "
+                       "repeated fit (a record near the limit of the linear model; choose one "
+                       "with --model)")
         return "NOT converged: " + "; ".join(why or ["see the starts"])
 
 
@@ -92,24 +101,45 @@ def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
 
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
-        theta0=None, warm_start: bool = True) -> FitResult:
+        theta0=None, warm_start: bool = True, check_models: bool = True) -> FitResult:
     """Fit from several starts; the lowest cost wins and every start is reported.
 
     `theta0` replaces the prior as start 0 (e.g. a previous optimum). `warm_start`: where
     records use the periodic-orbit model, each start is first carried to the optimum of the
-    linearised problem (cheap), and the full fit starts from there.
+    linearised problem (cheap), and the full fit starts from there. `check_models`: where the
+    problem chose its models itself (model "auto"), the choice is made again at the estimate
+    (`Problem.rechosen`); if it differs, the fit is repeated with it from the starts' optima.
     """
     t0 = time.perf_counter()
     points = start_points(problem, starts, seed)
     if theta0 is not None:
         points[0] = np.asarray(theta0, float)
-    rows = full_used_mask(problem)
     if warm_start and "nonlinear" in problem.models:
         lin = problem.linearised()
         lin_rows = full_used_mask(lin)
         points = [levenberg_marquardt(lin.rj, th0, max_steps=max_steps, tol=0.1,
                                       rows=lin_rows, max_std=no_information_std(problem)).theta
                   for th0 in points]
+    result = _fit_from(problem, points, max_steps)
+    auto = problem._choice["model"] == "auto" and problem._choice["nonlinear_ratio"] is None
+    if check_models and auto:
+        for attempt in range(2):
+            again = result.problem.rechosen(result.theta)
+            if again.same_choice(result.problem):
+                result.model_choice = "confirmed" if attempt == 0 else "refitted"
+                break
+            result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
+                               max_steps)
+        else:
+            result.model_choice = "unsettled"
+            result.converged = False
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def _fit_from(problem: Problem, points, max_steps: int) -> FitResult:
+    t0 = time.perf_counter()
+    rows = full_used_mask(problem)
     runs = []
     for th0 in points:
         out = levenberg_marquardt(problem.rj, th0, max_steps=max_steps, tol=0.1 * STEP_TOL,

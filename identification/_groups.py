@@ -1,10 +1,10 @@
 """Arrange the records of a `Problem` into per-speed arrays and map records to residual rows.
 
-Within a speed the data residual holds, in order, the linear sine records (R, H), the
-nonlinear sine records (S, H) and the lines of all FRF records (L,), each as all real parts
-then all imaginary parts. `layout[i] = (group, kind, rows, selector)` gives record i's group
-index, kind (0 linear, 1 nonlinear, 2 FRF), its residual rows and how to pick its model
-values from the group's prediction.
+Within a speed the data residual holds, in order, the linear and first-order sine records
+(R, H), the nonlinear sine records (S, H) and the lines of all FRF records (L,), each as all
+real parts then all imaginary parts. `layout[i] = (group, kind, rows, selector)` gives
+record i's group index, kind (0 linear or first-order, 1 nonlinear, 2 FRF), its residual
+rows and how to pick its model values from the group's prediction.
 """
 
 from __future__ import annotations
@@ -43,7 +43,10 @@ def _frf_arrays(problem, idx):
     data = problem.data
     freq = np.concatenate([np.asarray(data[i].frequency_hz, float) for i in idx])
     acc = np.concatenate([np.asarray(data[i].accelerance, complex) for i in idx])
-    std = np.sqrt(np.concatenate([np.asarray(data[i].variance, float) for i in idx]))
+    # Lines the linear FRF cannot model within the model-error bound: infinite std.
+    std = np.sqrt(np.concatenate([
+        np.where(np.asarray(problem.frf_left_out.get(i, False))[..., None], np.inf,
+                 np.asarray(data[i].variance, float)) for i in idx]))
     return [freq, acc, std]
 
 
@@ -55,12 +58,14 @@ def build_groups(problem, prior_sys):
     h = sines[0].harmonics.size if sines else 1
     groups, layout, pos = [], {}, 0
     for gi, s in enumerate(problem.speeds):
-        members = [[i for i, d in enumerate(data) if d.speed_rpm == s and models[i] == kind]
-                   for kind in ("linear", "nonlinear", "frf")]
+        members = [[i for i, d in enumerate(data) if d.speed_rpm == s and models[i] in kinds]
+                   for kinds in (("linear", "first-order"), ("nonlinear",), ("frf",))]
+        first = np.asarray([models[i] == "first-order" for i in members[0]], bool)
         lf, lF, lA, lS = _sine_arrays(problem, members[0], prior_sys[s], h)
         nf, nF, nA, nS = _sine_arrays(problem, members[1], prior_sys[s], h)
         ff, fA, fS = _frf_arrays(problem, members[2])
         groups.append(_Group(jnp.asarray(lf), jnp.asarray(lF), jnp.asarray(lA), jnp.asarray(lS),
+                             jnp.asarray(first),
                              jnp.asarray(nf[:, 0] if nf.size else np.zeros(0)),
                              jnp.asarray(nF), jnp.asarray(nA), jnp.asarray(nS),
                              jnp.asarray(ff), jnp.asarray(fA), jnp.asarray(fS)))

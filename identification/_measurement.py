@@ -190,6 +190,51 @@ def linear_acceleration(system, frequencies_hz, force_coeffs):
     return -(w**2) * h * force_coeffs
 
 
+def _matrices(system):
+    zero = jnp.zeros(3)
+    k = jax.jacfwd(lambda x: restoring_forces(system, x, zero))(zero)
+    c = jax.jacfwd(lambda v: restoring_forces(system, zero, v))(zero)
+    return k, c, jnp.diag(system.mass)
+
+
+def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLINEAR_SAMPLES,
+                        steps: int = 1):
+    """Correction to `linear_acceleration` [m/s^2] for the joints' nonlinearity (complex (H,)).
+
+    Harmonic balance on the harmonics k = 1..H of the force, solved by the chord method
+    from the linear steady state: the restoring forces are evaluated along the current
+    response x(t) = Re(sum_k X_k e^{i k w t}) at `samples` points per period; their k-th
+    Fourier coefficient minus the linear part (K + i k w C) X_k is the residual R_k, and
+    each step corrects X_k by -(K - (k w)^2 M + i k w C)^(-1) R_k. The result is -(k w)^2
+    times the total correction of the nut. `steps=1` is first order in the nonlinearity
+    (the "first-order" measurement model, and the predicted error of the linear one); the
+    difference between 2 and 1 steps estimates the first-order model's own error. The mean
+    shift and the harmonics above H are left out: for strong nonlinearity use the periodic
+    orbit (`nonlinear_acceleration`).
+    """
+    k_mat, c_mat, m_mat = _matrices(system)
+    h = force_coeffs.shape[-1]
+    kk = jnp.arange(1, h + 1)
+    w = 2.0 * jnp.pi * frequency_hz * kk  # (H,)
+    dyn = (k_mat[None] - (w**2)[:, None, None] * m_mat[None]
+           + 1j * w[:, None, None] * c_mat[None]).astype(complex)
+    rhs = jnp.zeros((h, 3), complex).at[:, 2].set(force_coeffs)
+    x_lin = jnp.linalg.solve(dyn, rhs[..., None])[..., 0]  # (H, 3)
+    theta = 2.0 * jnp.pi * jnp.arange(samples) / samples
+    phase = jnp.exp(1j * kk[None, :] * theta[:, None])  # (N, H)
+
+    def residual(x):
+        xs = jnp.real(phase @ x)
+        vs = jnp.real(phase @ (1j * w[:, None] * x))
+        coeff = (2.0 / samples) * (jnp.conj(phase).T @ restoring_forces(system, xs, vs))
+        return coeff + (-(w**2)[:, None] * (x @ m_mat.T)) - rhs
+
+    x = x_lin
+    for _ in range(steps):
+        x = x - jnp.linalg.solve(dyn, residual(x)[..., None])[..., 0]
+    return -(w**2) * (x - x_lin)[:, 2]
+
+
 def _forcing(frequency_hz, force_coeffs):
     return bsfs_jax.HarmonicForcing(frequency_hz, jnp.real(force_coeffs),
                                     -jnp.imag(force_coeffs))

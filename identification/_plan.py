@@ -141,17 +141,19 @@ def _planned_data(plan: TestPlan, prior, sample_rate_hz, distortion, accel_snr_d
 
 def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
                force_snr_db=40.0, sample_rate_hz=10240.0, distortion=(0.04, 0.02),
-               nonlinear_ratio=None):
+               nonlinear_ratio=PLAN_RATIO):
     """(names, expected std of the scaled parameters, scaled singular values, problem).
 
-    `nonlinear_ratio`: where the periodic-orbit model replaces the linearised one (default
-    `PLAN_RATIO`; the fit's own `NONLINEAR_RATIO` reproduces a fit's models exactly).
+    `nonlinear_ratio`: the joint amplitude / preload deformation above which the
+    periodic-orbit model replaces the linearised one (`PLAN_RATIO`); None: the fit's own
+    rule (predicted linearisation error against the planned noise), which reproduces a
+    fit's models exactly but compiles the orbit model more often.
     """
     data = _planned_data(plan, prior, sample_rate_hz, distortion, accel_snr_db, force_snr_db)
     # The noise levels follow the predicted signal levels, from the same models as the
     # Jacobian below (the harmonics of a strongly nonlinear record are the orbit's).
-    ratio = PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio
-    first = Problem(data, prior, fit_names, priors=None, nonlinear_ratio=ratio)
+    first = Problem(data, prior, fit_names, priors=None,
+                    nonlinear_ratio=PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio)
     acc = first.model_harmonics(np.zeros(first.n_params))
     noisy = []
     for d, a in zip(data, acc):
@@ -167,7 +169,7 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.
     # Planning accepts the linearised model up to a joint amplitude of 30 % of the preload
     # deformation (the 100 N sine at resonance): it changes the predicted standard errors by
     # a few per cent, and saves compiling the periodic-orbit model for the whole table.
-    problem = Problem(noisy, prior, fit_names, priors=None, nonlinear_ratio=ratio)
+    problem = Problem(noisy, prior, fit_names, priors=None, nonlinear_ratio=nonlinear_ratio)
     jac = problem.rj(np.zeros(problem.n_params))[1][problem.used_mask()]
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     inv = np.where(sv > sv[0] * 1e-14, 1.0 / np.maximum(sv, 1e-300) ** 2, np.inf)

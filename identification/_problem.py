@@ -31,7 +31,8 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
-from ._measurement import linear_acceleration, nonlinear_acceleration, receptance
+from ._choice import MODEL_ERROR, is_frf, joint_amplitude_ratio, linearisation_z
+from ._measurement import linear_acceleration, linearisation_error, nonlinear_acceleration
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,8 +73,6 @@ FIT_PARAMETERS = {
 }
 DEFAULT_FIT = ("nut_k", "bearing_k", "screw_k", "c_b", "c_s", "c_n", "expansion")
 PRELOAD_FIT = ("nut_preload", "bearing_preload", "c_b", "c_s", "c_n")
-# Above this joint amplitude / preload deformation the nonlinear (shooting) model is used.
-NONLINEAR_RATIO = 0.1
 # Harmonics above this fraction of the sample rate are not used (anti-alias filter phase).
 MAX_HARMONIC_FRACTION = 0.25
 # A trial point whose model is not finite (a joint without preload) costs this per entry.
@@ -129,6 +128,7 @@ class _Group(eqx.Module):
     lin_force: jax.Array  # (R, H) complex
     lin_acc: jax.Array  # (R, H) complex measured
     lin_scale: jax.Array  # (R, H, 2) std of (re, im)
+    lin_first: jax.Array  # (R,) bool: first-order (weakly nonlinear) correction added
     nl_freq: jax.Array  # (S,)
     nl_force: jax.Array  # (S, H)
     nl_acc: jax.Array
@@ -139,60 +139,37 @@ class _Group(eqx.Module):
 
 
 _build = eqx.filter_jit(bsfs_jax.build_system)
-_linear_jit = eqx.filter_jit(linear_acceleration)
-_receptance_jit = eqx.filter_jit(receptance)
-
-
-def is_frf(d) -> bool:
-    return hasattr(d, "accelerance")
-
-
-def joint_amplitude_ratio(system, data) -> float:
-    """Largest joint deformation amplitude / preload deformation, linear prediction (numpy).
-
-    The nonlinearity error of the linear model grows about as this ratio squared; at the
-    paper's 100 N and 100-150 Hz it is 0.04-0.05 (error ~1e-5, far below the noise). For an
-    FRF record the force level in its header is taken as the amplitude at every line (0
-    when the file does not give it).
-    """
-    if is_frf(data):
-        freq = np.asarray(data.frequency_hz)
-        force = np.full(freq.shape, float(data.force_amplitude_n or 0.0))
-        h = np.asarray(_receptance_jit(system, jnp.asarray(freq)))
-        x = h * force[:, None]
-        u_bearing, u_nut = np.max(np.abs(x[:, 0])), np.max(np.abs(x[:, 2] - x[:, 1]))
-    else:
-        h = np.asarray(_receptance_jit(system, jnp.asarray(data.frequency_hz * data.harmonics)))
-        x = h * data.force[:, None]
-        u_bearing = np.sum(np.abs(x[:, 0]))
-        u_nut = np.sum(np.abs(x[:, 2] - x[:, 1]))
-    d_nut = float(system.nut.a - system.nut.a0 - system.nut.offset)
-    d_bearing = float(system.bearing.a - system.bearing.a0 - system.bearing.offset)
-    return float(max(u_nut / d_nut, u_bearing / d_bearing))
 
 
 class Problem:
     """A fit problem: data of the records, the prior parameter set, the parameters to fit.
 
     `data`: `HarmonicData` (sine records) and FRF records (`FrfRecord`), any mix.
-    `model`: "auto" (per sine record: the linearised FRF where the predicted joint
-    amplitude is below `NONLINEAR_RATIO` of the preload deformation, else the nonlinear
-    periodic orbit by shooting), "linear" or "nonlinear". FRF records always use the
-    linearised model (they are the small-signal FRF by definition).
+    `model`: "auto" (per sine record: the linearised FRF where its predicted error at the
+    prior, `linearisation_z`, is below `model_error` standard errors in every harmonic, else
+    the nonlinear periodic orbit by shooting), "linear" or "nonlinear". FRF records use the
+    linearised model (the small-signal FRF); in "auto" the lines of a chirp whose predicted
+    error exceeds `model_error` are left out (`frf_left_out`).
+    `nonlinear_ratio`: instead of the error rule, choose by the joint amplitude / preload
+    deformation (planning, where the noise is not known yet).
     `priors`: {name: sigma of theta}, "default" (each parameter's `prior_sigma`) or None
     (maximum likelihood).
     """
 
     def __init__(self, data, prior, fit=DEFAULT_FIT, model: str = "auto",
                  max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default",
-                 nonlinear_ratio: float = NONLINEAR_RATIO):
+                 nonlinear_ratio: float | None = None, model_error: float = MODEL_ERROR,
+                 frf_left_out: dict | None = None, model_theta=None):
         if not data:
             raise ValueError("no records")
-        if model not in ("auto", "linear", "nonlinear"):
-            raise ValueError(f"model must be auto, linear or nonlinear, got '{model}'")
+        if model not in ("auto", "linear", "first-order", "nonlinear"):
+            raise ValueError(f"model must be auto, linear, first-order or nonlinear, got "
+                             f"'{model}'")
         self.data = list(data)
         self.fit = tuple(fit)
         self._options = dict(max_harmonic_fraction=max_harmonic_fraction)
+        self._choice = dict(model=model, nonlinear_ratio=nonlinear_ratio,
+                            model_error=model_error)
         sines = [d for d in self.data if not is_frf(d)]
         self.max_harmonic_hz = (max_harmonic_fraction * min(d.record.sample_rate_hz
                                                             for d in sines)
@@ -230,13 +207,28 @@ class Problem:
         self.priors = None if priors is None else dict(priors)
         self.prior_sigma = (None if priors is None else
                             np.asarray([self.priors[n.split("@")[0]] for n in self.names]))
-        systems = {s: _build(base.replace("thermal.speed_rpm", s)) for s in self.speeds}
+        # Models, left-out lines and the weights' transfer functions are decided at the prior,
+        # or at `model_theta` (an estimate: see `rechosen`).
+        self.model_theta = None if model_theta is None else np.asarray(model_theta, float)
+        systems = {s: _build(base.replace("thermal.speed_rpm", s) if model_theta is None
+                             else self.params_at(self.model_theta, s)) for s in self.speeds}
         self.amplitude_ratios = [joint_amplitude_ratio(systems[d.speed_rpm], d)
                                  for d in self.data]
-        self.models = ["frf" if is_frf(d) else
-                       (model if model != "auto" else
-                        ("nonlinear" if r > nonlinear_ratio else "linear"))
-                       for d, r in zip(self.data, self.amplitude_ratios)]
+        self.linearisation_z = ([linearisation_z(systems[d.speed_rpm], d, self.max_harmonic_hz)
+                                 for d in self.data] if nonlinear_ratio is None and
+                                model == "auto" else [None] * len(self.data))
+        self.models = [
+            "frf" if is_frf(d) else model if model != "auto" else
+            (("nonlinear" if r > nonlinear_ratio else "linear") if nonlinear_ratio is not None
+             else "linear" if z[0] <= model_error else
+             "first-order" if z[1] <= model_error else "nonlinear")
+            for d, r, z in zip(self.data, self.amplitude_ratios, self.linearisation_z)]
+        # Chirp lines the linear FRF cannot model within `model_error`: left out.
+        self.frf_left_out = {i: np.asarray(z) > model_error
+                             for i, (d, z) in enumerate(zip(self.data, self.linearisation_z))
+                             if is_frf(d) and z is not None and np.any(np.asarray(z) > model_error)}
+        if frf_left_out is not None:
+            self.frf_left_out = dict(frf_left_out)
         self.groups, self.layout = self._build_groups(systems)
         self._residual_jit = eqx.filter_jit(self.residual)
         self._jac_jit = eqx.filter_jit(jax.jacfwd(self.residual))
@@ -248,7 +240,19 @@ class Problem:
         """The same problem with every sine record on the linearised model (a cheap start
         for the periodic-orbit fit)."""
         return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
-                       **self._options)
+                       frf_left_out=self.frf_left_out, **self._options)
+
+    def rechosen(self, theta) -> Problem:
+        """The same problem with its models and left-out lines decided at `theta` instead of
+        the prior (`fit` checks its choice at the estimate this way)."""
+        return Problem(self.data, self.prior, self.fit, priors=self.priors, model_theta=theta,
+                       **self._choice, **self._options)
+
+    def same_choice(self, other: Problem) -> bool:
+        """Whether `other` uses the same model per record and leaves out the same lines."""
+        return (self.models == other.models and self.frf_left_out.keys() ==
+                other.frf_left_out.keys() and all(np.array_equal(v, other.frf_left_out[k])
+                                                  for k, v in self.frf_left_out.items()))
 
     def rj(self, theta, groups=None):
         """(residual, Jacobian) as numpy arrays: one compiled function for every use."""
@@ -331,6 +335,10 @@ class Problem:
             system = bsfs_jax.build_system(self.params_at(theta, s))
             lin = (linear_acceleration(system, g.lin_freq, g.lin_force)
                    if g.lin_freq.shape[0] else jnp.zeros((0, g.lin_freq.shape[1]), complex))
+            if "first-order" in self.models and g.lin_freq.shape[0]:
+                corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(
+                    system, g.lin_freq[:, 0], g.lin_force)
+                lin = lin + jnp.where(g.lin_first[:, None], corr, 0.0)
             if g.nl_freq.shape[0]:
                 fn = lambda f, fc: nonlinear_acceleration(system, f, fc)
                 nl, ok = jax.vmap(fn)(g.nl_freq, g.nl_force)

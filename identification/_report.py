@@ -12,7 +12,7 @@ import bsfs_jax
 
 from ._fit import FitResult, fit
 from ._measurement import harmonic_analysis
-from ._problem import DEFAULT_FIT, Problem, is_frf
+from ._problem import DEFAULT_FIT, MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
 from ._uncertainty import DETERMINED_RATIO, IDENTIFIABLE_STD, Uncertainty, uncertainty
 
@@ -79,6 +79,7 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     prior = bsfs_jax.preset() if prior is None else prior
     problem = Problem(data, prior, fit_names, model=model, priors=priors)
     result = fit(problem, starts=starts, seed=seed, max_steps=max_steps)
+    problem = result.problem  # the models as chosen at the estimate
     unc = uncertainty(result)
     lin = None
     if profile == "auto":
@@ -92,6 +93,16 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin)
 
 
+def _model_errors(z, frf: bool) -> dict:
+    """Predicted model errors [standard errors] (None where not computed): the linear
+    model's (largest over the lines of an FRF), and a sine record's first-order model's."""
+    if z is None:
+        return dict(linear_model_error_std=None)
+    if frf:
+        return dict(linear_model_error_std=float(np.max(z)) if np.size(z) else 0.0)
+    return dict(linear_model_error_std=z[0], first_order_model_error_std=z[1])
+
+
 def _record_rows(res: IdentificationResult):
     pb = res.problem
     model = res.model_harmonics()
@@ -103,12 +114,18 @@ def _record_rows(res: IdentificationResult):
         row = dict(name=d.name, file=d.source if is_frf(d) else d.record.source,
                    speed_rpm=d.speed_rpm, model=pb.models[i],
                    amplitude_ratio=pb.amplitude_ratios[i],
+                   **_model_errors(pb.linearisation_z[i], is_frf(d)),
                    normalized_rms=float(np.sqrt(np.mean(r**2))) if r.size else None)
         if is_frf(d):
             f = np.asarray(d.frequency_hz)
+            out = pb.frf_left_out.get(i)
             row.update(excitation=d.excitation, lines=int(f.size),
                        band_hz=[float(f.min()), float(f.max())],
-                       force_amplitude_n=d.force_amplitude_n)
+                       force_amplitude_n=d.force_amplitude_n,
+                       lines_left_out_nonlinear=int(np.count_nonzero(out)) if out is not None
+                       else 0,
+                       left_out_band_hz=([float(f[out].min()), float(f[out].max())]
+                                         if out is not None else None))
         else:
             keep = d.frequency_hz * d.harmonics <= pb.max_harmonic_hz
             diff = (d.acceleration - model[i])[keep]
@@ -201,9 +218,12 @@ def report_dict(res: IdentificationResult) -> dict:
                       else "maximum likelihood (no priors)")
                    + "; forward-mode Jacobians; multi-start",
             measurement_model="sine records: Fourier coefficients of force and worktable "
-                              "acceleration, linearised FRF or periodic orbit (shooting) per "
-                              "record; chirp/random/hammer: H1 FRF lines vs the linearised "
-                              "FRF"),
+                              "acceleration; per record the linearised FRF, its first-order "
+                              "harmonic-balance correction or the periodic orbit (shooting), "
+                              f"the simplest whose predicted error is below {MODEL_ERROR:g} "
+                              "standard errors; chirp/random/hammer: FRF lines vs the "
+                              "linearised FRF, a chirp's lines beyond that bound left out",
+            model_choice=fr.model_choice),
         summary=summary_text(res),
     )
 

@@ -53,18 +53,40 @@ def preload_verdicts(res) -> list[str]:
     return lines
 
 
+_CHOICE = {"confirmed": "; models per record confirmed at the estimate",
+           "refitted": "; models per record re-chosen at the estimate and the fit repeated"}
+
+
+def _left_out_lines(res) -> list[str]:
+    """One line per chirp whose lines near a resonance drive the joints beyond linear."""
+    out = []
+    for i, mask in sorted(res.problem.frf_left_out.items()):
+        d = res.data[i]
+        f = np.asarray(d.frequency_hz)[mask]
+        z = float(np.max(res.problem.linearisation_z[i]))
+        out.append(f"Record '{d.name}': {mask.sum()} of {mask.size} lines ({f.min():.0f}-"
+                   f"{f.max():.0f} Hz) left out: at {d.force_amplitude_n:g} N the joints are "
+                   f"not linear there (linear-model error up to {z:.2g} standard errors). "
+                   "A lower chirp level keeps them.")
+    return out
+
+
 def summary_text(res) -> str:
     pb, fr, u = res.problem, res.fit, res.uncertainty
     synth = any(str((d.meta if is_frf(d) else d.record.meta).get("synthetic", "")).lower()
                 == "true" for d in res.data)
-    kinds = {k: sum(m == k for m in pb.models) for k in ("linear", "nonlinear", "frf")}
+    kinds = {k: sum(m == k for m in pb.models)
+             for k in ("linear", "first-order", "nonlinear", "frf")}
     lines = [f"Identification from {len(res.data)} record(s)"
              f"{' (SYNTHETIC data)' if synth else ''}: {_record_line(res.data)}",
-             f"Model: linearised FRF for {kinds['linear']} sine record(s), periodic orbit "
-             f"(shooting) for {kinds['nonlinear']}, {kinds['frf']} FRF record(s); "
+             f"Model: linearised FRF for {kinds['linear']} sine record(s), first-order "
+             f"nonlinear correction for {kinds['first-order']}, periodic orbit (shooting) for "
+             f"{kinds['nonlinear']}, {kinds['frf']} FRF record(s); "
              + ("maximum a posteriori with priors (sigma in the table)" if pb.priors is not None
                 else "maximum likelihood (no priors)") + f"; {res.seconds:.1f} s.",
-             f"Fit {fr.convergence_text}; {fr.steps} iterations.",
+             *_left_out_lines(res),
+             f"Fit {fr.convergence_text}; {fr.steps} iterations" + _CHOICE.get(fr.model_choice,
+                                                                               "") + ".",
              f"Noise: {u.noise['text']}.", ""]
     head = f"{'parameter':<18}{'value':>11}{'std':>10}   {'95% interval':<24}{'unit':<11}"
     head += "prior (sigma)       " if pb.priors is not None else ""

@@ -164,6 +164,7 @@ def fit_data(data, prior):
     """`identify` on measurement data (what it does after loading the records)."""
     pb = idn.Problem(data, prior, idn.PRELOAD_FIT)
     res = idn.fit(pb, starts=3)
+    pb = res.problem  # models and left-out chirp lines as chosen at the estimate
     unc = idn.uncertainty(res)
     profile = "nonlinear" not in pb.models
     if profile:
@@ -224,6 +225,8 @@ def run_replicate(truth, prior, design: str, replicate: int, frf_dir: Path | Non
                 noise_scale=unc.noise.get("noise_scale"), scaled_by=unc.noise["scaled_by"],
                 chi2=unc.noise["chi2"], dof=unc.noise["dof"], models=list(pb.models),
                 amplitude_ratios=[float(a) for a in pb.amplitude_ratios], profiled=profiled,
+                model_choice=res.model_choice,
+                chirp_lines_left_out=int(sum(m.sum() for m in pb.frf_left_out.values())),
                 synth_s=t1 - t0, fit_s=t2 - t1)
 
 

@@ -268,6 +268,16 @@ def test_preload_loss_is_diagnosed_from_sines_and_a_chirp(preload_run):
     assert report["fit"]["converged"] and report["noise"]["checked"]
     assert not report["noise"]["model_error"]
     assert {r["excitation"] for r in report["records"]} == {"sine", "chirp"}
+    # Models decided at the estimate (the worn drive's resonance is far below the prior's):
+    # the 700 Hz sine needs the first-order correction, the chirp's lines at the resonance
+    # are left out, and the summary says so.
+    assert report["fit"]["model_choice"] == "refitted"
+    models = {r["name"]: r["model"] for r in report["records"]}
+    assert models["sine_0700hz_100n"] == "first-order"
+    chirp, = (r for r in report["records"] if r["excitation"] == "chirp")
+    assert 0 < chirp["lines_left_out_nonlinear"] < 0.05 * chirp["lines"]
+    assert chirp["linear_model_error_std"] > idn.MODEL_ERROR
+    assert "left out: at 5 N the joints are not linear there" in report["summary"]
     for name, row in report["parameters"].items():
         assert row["identified"], name
         truth = float(worn.get(row["key"]))
@@ -358,11 +368,9 @@ def test_stepped_sine_recovers_everything_within_3_sigma():
     # The plan's prediction for this design matches the achieved standard errors.
     plan = idn.plan_from_records("bundled stepped sine", [d.record for d in res.data])
     # The same models as the fit (the planner's default tolerates the linearised model up to
-    # 30 % joint amplitude, which makes it conservative for the expansion coefficient).
-    from identification._problem import NONLINEAR_RATIO
-
-    _, predicted, _, _ = idn.fisher_std(plan, bsfs_jax.preset(),
-                                        nonlinear_ratio=NONLINEAR_RATIO)
+    # 30 % joint amplitude, which makes it conservative for the expansion coefficient); None
+    # applies the fit's rule (predicted linearisation error against the planned noise).
+    _, predicted, _, _ = idn.fisher_std(plan, bsfs_jax.preset(), nonlinear_ratio=None)
     # The planner predicts the scatter of the estimate; the achieved linearised errors are
     # scaled by the residuals' measured noise scale (1.12 here, not significant enough to
     # widen the reported intervals) to compare like with like.

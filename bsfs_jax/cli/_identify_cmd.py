@@ -49,9 +49,11 @@ def register(sub) -> None:
     p.add_argument("--compare", metavar="DIR",
                    help="an earlier `bsfs identify --out DIR`: draw compare.png, the two "
                    "identifications side by side")
-    p.add_argument("--model", choices=["auto", "linear", "nonlinear"], default="auto",
-                   help="steady-state model per sine record (auto: linear FRF at small "
-                   "amplitude, shooting otherwise)")
+    p.add_argument("--model", choices=["auto", "linear", "first-order", "nonlinear"],
+                   default="auto",
+                   help="steady-state model per sine record (auto: the linear FRF where its "
+                   "predicted error is below 0.1 standard errors, else the first-order "
+                   "harmonic-balance correction where that is, else the periodic orbit)")
     p.add_argument("--starts", type=count(1, 100), default=3, help="multi-start count (3)")
     p.add_argument("--max-steps", type=count(1, 100_000), default=100,
                    help="LM iterations per start (100)")
