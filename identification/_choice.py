@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._measurement import linear_acceleration, linearisation_error, receptance
+from ._measurement import linearisation_error, receptance
 
 # The bound on a model's predicted error, in standard errors of each entry. Per entry it is
 # small against the noise; summed over many entries (a chirp's lines) a deterministic error
@@ -24,10 +24,7 @@ from ._measurement import linear_acceleration, linearisation_error, receptance
 # (docs/COVERAGE.md) measures what remains.
 MODEL_ERROR = 0.1
 
-_linear_jit = eqx.filter_jit(linear_acceleration)
 _receptance_jit = eqx.filter_jit(receptance)
-_error_jit = eqx.filter_jit(lambda system, f, fc: (linearisation_error(system, f, fc),
-                                                  linearisation_error(system, f, fc, steps=2)))
 _error_lines_jit = eqx.filter_jit(jax.vmap(linearisation_error, in_axes=(None, 0, 0)))
 
 
@@ -35,28 +32,70 @@ def is_frf(d) -> bool:
     return hasattr(d, "accelerance")
 
 
-def joint_amplitude_ratio(system, data) -> float:
-    """Largest joint deformation amplitude / preload deformation, linear prediction (numpy).
+@eqx.filter_jit
+def _sine_kernel(system, freq, harmonics, force, errors: bool):
+    """One compiled call for all sine records of a speed: joint amplitudes of the linear
+    response, the model's transfer (accelerance) per harmonic, and where `errors` the first
+    and second chord steps of `linearisation_error`."""
+    fk = freq[:, None] * harmonics[None, :]  # (R, H)
+    h = receptance(system, fk.reshape(-1)).reshape(*fk.shape, 3)
+    x = h * force[..., None]
+    u_bearing = jnp.sum(jnp.abs(x[..., 0]), axis=1)
+    u_nut = jnp.sum(jnp.abs(x[..., 2] - x[..., 1]), axis=1)
+    transfer = -((2.0 * jnp.pi * fk) ** 2) * h[..., 2]
+    if not errors:
+        return u_bearing, u_nut, transfer, None, None
+    steps = lambda f, fc: (linearisation_error(system, f, fc),
+                           linearisation_error(system, f, fc, steps=2))
+    one, two = jax.vmap(steps)(freq, force)
+    return u_bearing, u_nut, transfer, one, two
 
-    The nonlinearity error of the linear model grows about as this ratio squared; at the
-    paper's 100 N and 100-150 Hz it is 0.04-0.05 (error ~1e-5, far below the noise). For an
-    FRF record the force level in its header is taken as the amplitude at every line (0
-    when the file does not give it).
+
+def _preload_deformations(system):
+    return (float(system.nut.a - system.nut.a0 - system.nut.offset),
+            float(system.bearing.a - system.bearing.a0 - system.bearing.offset))
+
+
+def screen_sines(system, sines, max_harmonic_hz=np.inf, errors: bool = True):
+    """For sine records at one speed (`HarmonicData`, same harmonics): (amplitude ratios,
+    model errors, transfers).
+
+    - ratio: the largest joint deformation amplitude of the linear response over its
+      preload deformation (the nonlinearity error grows about as its square);
+    - errors (None unless `errors`): (linear, first-order), the largest |error| / std over
+      the Re and Im parts of the usable harmonics of the linearised model (its first-order
+      correction, `linearisation_error`) and of the first-order model (one more chord step
+      changes it by that much); std from both channels, var(A) + |G|^2 var(F);
+    - transfer (H,): the model's accelerance G at the harmonics (the weights' G).
     """
-    if is_frf(data):
-        freq = np.asarray(data.frequency_hz)
-        force = np.full(freq.shape, float(data.force_amplitude_n or 0.0))
-        h = np.asarray(_receptance_jit(system, jnp.asarray(freq)))
-        x = h * force[:, None]
-        u_bearing, u_nut = np.max(np.abs(x[:, 0])), np.max(np.abs(x[:, 2] - x[:, 1]))
-    else:
-        h = np.asarray(_receptance_jit(system, jnp.asarray(data.frequency_hz * data.harmonics)))
-        x = h * data.force[:, None]
-        u_bearing = np.sum(np.abs(x[:, 0]))
-        u_nut = np.sum(np.abs(x[:, 2] - x[:, 1]))
-    d_nut = float(system.nut.a - system.nut.a0 - system.nut.offset)
-    d_bearing = float(system.bearing.a - system.bearing.a0 - system.bearing.offset)
-    return float(max(u_nut / d_nut, u_bearing / d_bearing))
+    if not sines:
+        return [], [], []
+    out = _sine_kernel(system, jnp.asarray([d.frequency_hz for d in sines], float),
+                       jnp.asarray(sines[0].harmonics, float),
+                       jnp.asarray(np.stack([d.force for d in sines])), errors)
+    u_b, u_n, g = (np.asarray(a) for a in out[:3])
+    d_nut, d_bearing = _preload_deformations(system)
+    ratios = [float(max(a / d_nut, b / d_bearing)) for a, b in zip(u_n, u_b)]
+    z = [None] * len(sines)
+    if errors:
+        one, two = np.asarray(out[3]), np.asarray(out[4])
+        for i, d in enumerate(sines):
+            var = d.acceleration_var + np.abs(g[i])[:, None] ** 2 * d.force_var
+            usable = d.frequency_hz * d.harmonics <= max_harmonic_hz
+            z[i] = tuple(float(np.max(np.where(usable, _z(e, var), 0.0)))
+                         for e in (one[i], two[i] - one[i]))
+    return ratios, z, list(g)
+
+
+def frf_amplitude_ratio(system, data) -> float:
+    """As `screen_sines`' ratio for an FRF record, with the force level in its header taken
+    as the amplitude at every line (0 when the file does not give it)."""
+    freq = np.asarray(data.frequency_hz)
+    force = np.full(freq.shape, float(data.force_amplitude_n or 0.0))
+    x = np.asarray(_receptance_jit(system, jnp.asarray(freq))) * force[:, None]
+    d_nut, d_bearing = _preload_deformations(system)
+    return float(max(np.max(np.abs(x[:, 2] - x[:, 1])) / d_nut,
+                     np.max(np.abs(x[:, 0])) / d_bearing))
 
 
 def _z(err, var):
@@ -66,28 +105,17 @@ def _z(err, var):
     return np.where(np.isnan(z), np.inf, z)
 
 
-def linearisation_z(system, data, max_harmonic_hz=np.inf):
-    """Predicted model errors in standard errors (numpy, >= 0), at `system`.
+def chirp_line_z(system, data):
+    """Predicted linear-model error per line of an FRF record, in standard errors.
 
-    Sine record: (linear, first-order), the largest |error| / std over the Re and Im parts
-    of its usable harmonics of the linearised model (its first-order correction,
-    `linearisation_error`) and of the first-order model (one more chord step changes it by
-    that much). Chirp FRF record: the linear model's per line, at the record's force level
-    as a steady-state amplitude (an upper bound for a sweep). Other FRF records (random,
-    hammer, unknown level): zeros, not checked (the level per line is not known).
+    Chirp: at the record's force level as a steady-state amplitude (an upper bound for a
+    sweep). Other FRF records (random, hammer, unknown level): zeros, not checked (the level
+    per line is not known).
     """
-    if is_frf(data):
-        freq = np.asarray(data.frequency_hz, float)
-        if data.excitation != "chirp" or not data.force_amplitude_n:
-            return np.zeros(freq.shape)
-        force = np.full((freq.size, 1), float(data.force_amplitude_n), complex)
-        err = np.asarray(_error_lines_jit(system, jnp.asarray(freq), jnp.asarray(force)))[:, 0]
-        z = _z(err, np.asarray(data.variance, float))
-        return np.where(np.isfinite(z), z, 0.0)
-    freq = data.frequency_hz * data.harmonics
-    one, two = map(np.asarray, _error_jit(system, float(data.frequency_hz),
-                                          jnp.asarray(data.force)))
-    g = np.asarray(_linear_jit(system, jnp.asarray(freq), jnp.ones(freq.shape, complex)))
-    var = data.acceleration_var + np.abs(g)[:, None] ** 2 * data.force_var
-    usable = freq <= max_harmonic_hz
-    return tuple(float(np.max(np.where(usable, _z(e, var), 0.0))) for e in (one, two - one))
+    freq = np.asarray(data.frequency_hz, float)
+    if data.excitation != "chirp" or not data.force_amplitude_n:
+        return np.zeros(freq.shape)
+    force = np.full((freq.size, 1), float(data.force_amplitude_n), complex)
+    err = np.asarray(_error_lines_jit(system, jnp.asarray(freq), jnp.asarray(force)))[:, 0]
+    z = _z(err, np.asarray(data.variance, float))
+    return np.where(np.isfinite(z), z, 0.0)

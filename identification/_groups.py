@@ -9,16 +9,11 @@ rows and how to pick its model values from the group's prediction.
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._measurement import linear_acceleration
 
-_linear_jit = eqx.filter_jit(linear_acceleration)
-
-
-def _sine_arrays(problem, idx, prior_system, h):
+def _sine_arrays(problem, idx, h):
     if not idx:
         return [np.zeros((0, h)), np.zeros((0, h), complex), np.zeros((0, h), complex),
                 np.zeros((0, h, 2))]
@@ -26,9 +21,9 @@ def _sine_arrays(problem, idx, prior_system, h):
     freq = np.stack([data[i].frequency_hz * data[i].harmonics for i in idx])
     force = np.stack([data[i].force for i in idx])
     acc = np.stack([data[i].acceleration for i in idx])
-    # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the prior
-    # model's transfer (a weight only; not differentiated).
-    g = np.asarray(_linear_jit(prior_system, jnp.asarray(freq), jnp.ones(freq.shape, complex)))
+    # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the model's
+    # transfer where the models were chosen (a weight only; not differentiated).
+    g = np.stack([problem.transfer[i] for i in idx])
     var = (np.stack([data[i].acceleration_var for i in idx])
            + np.abs(g)[..., None] ** 2 * np.stack([data[i].force_var for i in idx]))
     # Harmonics near the anti-alias filter are left out (their phase is the filter's, not
@@ -50,7 +45,7 @@ def _frf_arrays(problem, idx):
     return [freq, acc, std]
 
 
-def build_groups(problem, prior_sys):
+def build_groups(problem):
     from ._problem import _Group, is_frf
 
     data, models = problem.data, problem.models
@@ -61,8 +56,8 @@ def build_groups(problem, prior_sys):
         members = [[i for i, d in enumerate(data) if d.speed_rpm == s and models[i] in kinds]
                    for kinds in (("linear", "first-order"), ("nonlinear",), ("frf",))]
         first = np.asarray([models[i] == "first-order" for i in members[0]], bool)
-        lf, lF, lA, lS = _sine_arrays(problem, members[0], prior_sys[s], h)
-        nf, nF, nA, nS = _sine_arrays(problem, members[1], prior_sys[s], h)
+        lf, lF, lA, lS = _sine_arrays(problem, members[0], h)
+        nf, nF, nA, nS = _sine_arrays(problem, members[1], h)
         ff, fA, fS = _frf_arrays(problem, members[2])
         groups.append(_Group(jnp.asarray(lf), jnp.asarray(lF), jnp.asarray(lA), jnp.asarray(lS),
                              jnp.asarray(first),

@@ -31,7 +31,7 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
-from ._choice import MODEL_ERROR, is_frf, joint_amplitude_ratio, linearisation_z
+from ._choice import MODEL_ERROR, chirp_line_z, frf_amplitude_ratio, is_frf, screen_sines
 from ._measurement import linear_acceleration, linearisation_error, nonlinear_acceleration
 
 
@@ -212,11 +212,7 @@ class Problem:
         self.model_theta = None if model_theta is None else np.asarray(model_theta, float)
         systems = {s: _build(base.replace("thermal.speed_rpm", s) if model_theta is None
                              else self.params_at(self.model_theta, s)) for s in self.speeds}
-        self.amplitude_ratios = [joint_amplitude_ratio(systems[d.speed_rpm], d)
-                                 for d in self.data]
-        self.linearisation_z = ([linearisation_z(systems[d.speed_rpm], d, self.max_harmonic_hz)
-                                 for d in self.data] if nonlinear_ratio is None and
-                                model == "auto" else [None] * len(self.data))
+        self._screen(systems, model == "auto" and nonlinear_ratio is None)
         self.models = [
             "frf" if is_frf(d) else model if model != "auto" else
             (("nonlinear" if r > nonlinear_ratio else "linear") if nonlinear_ratio is not None
@@ -229,7 +225,7 @@ class Problem:
                              if is_frf(d) and z is not None and np.any(np.asarray(z) > model_error)}
         if frf_left_out is not None:
             self.frf_left_out = dict(frf_left_out)
-        self.groups, self.layout = self._build_groups(systems)
+        self.groups, self.layout = self._build_groups()
         self._residual_jit = eqx.filter_jit(self.residual)
         self._jac_jit = eqx.filter_jit(jax.jacfwd(self.residual))
         both = lambda th, g: (self.residual(th, g),) * 2
@@ -241,6 +237,25 @@ class Problem:
         for the periodic-orbit fit)."""
         return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
                        frf_left_out=self.frf_left_out, **self._options)
+
+    def _screen(self, systems, errors: bool):
+        """Per record: `amplitude_ratios`, `linearisation_z` (None where not computed) and
+        the sine records' model transfer at the harmonics (`transfer`, for the weights)."""
+        n = len(self.data)
+        self.amplitude_ratios, self.linearisation_z = [0.0] * n, [None] * n
+        self.transfer = {}
+        for s in self.speeds:
+            idx = [i for i, d in enumerate(self.data) if d.speed_rpm == s and not is_frf(d)]
+            ratios, z, g = screen_sines(systems[s], [self.data[i] for i in idx],
+                                        self.max_harmonic_hz, errors)
+            for j, i in enumerate(idx):
+                self.amplitude_ratios[i], self.linearisation_z[i] = ratios[j], z[j]
+                self.transfer[i] = g[j]
+        for i, d in enumerate(self.data):
+            if is_frf(d):
+                self.amplitude_ratios[i] = frf_amplitude_ratio(systems[d.speed_rpm], d)
+                if errors:
+                    self.linearisation_z[i] = chirp_line_z(systems[d.speed_rpm], d)
 
     def rechosen(self, theta) -> Problem:
         """The same problem with its models and left-out lines decided at `theta` instead of
@@ -321,10 +336,10 @@ class Problem:
         return p
 
     # -- data ------------------------------------------------------------------------------
-    def _build_groups(self, prior_sys):
+    def _build_groups(self):
         from ._groups import build_groups
 
-        return build_groups(self, prior_sys)
+        return build_groups(self)
 
     # -- model and residual ----------------------------------------------------------------
     def predict(self, theta, groups=None):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 import json
 import os
 import platform
@@ -40,6 +41,7 @@ from bsfs_jax.cli._common import setup_jax  # noqa: E402
 
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
+import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bsfs_jax  # noqa: E402
@@ -492,6 +494,10 @@ def main(argv=None) -> int:
         t_start = time.perf_counter()
         for j, k in enumerate(todo):
             row = run_replicate(truth, prior, args.design, k, frf_dir)
+            # Each replicate's Problems compile their own programs; drop them (a long run
+            # otherwise runs out of memory maps: "LLVM compilation error: Cannot allocate").
+            jax.clear_caches()
+            gc.collect()
             row["host"] = platform.node()
             append_line(path, row)
             rows.append(row)
