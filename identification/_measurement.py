@@ -28,8 +28,12 @@ and its output is the worktable acceleration x_n''. Two steady-state models:
   whereas discarding the transient near the lightly damped resonance (zeta ~ 1 %, decay
   time ~12 ms) needs >100 periods.
 
-Choice per record (`Problem(model="auto")`): the linear model where the predicted joint
-amplitude is below 10 % of the preload deformation, the orbit engine otherwise. Comparing in the
+- `first-order`: the linear model plus one chord step of harmonic balance
+  (`linearisation_error`): the weakly nonlinear case at the cost of 64 force evaluations
+  per record, with the same Jacobian machinery as the linear model.
+
+Choice per record (`Problem(model="auto")`, `_choice.py`): the simplest of the three whose
+predicted error is below 0.1 standard errors of the record's harmonics. Comparing in the
 harmonic domain is equivalent to comparing steady-state time samples (Parseval) once the
 record is stationary, but reduces 20 000 samples to 6 numbers with known standard errors
 and needs the model's steady state for one period only.

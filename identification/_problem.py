@@ -145,11 +145,13 @@ class Problem:
     """A fit problem: data of the records, the prior parameter set, the parameters to fit.
 
     `data`: `HarmonicData` (sine records) and FRF records (`FrfRecord`), any mix.
-    `model`: "auto" (per sine record: the linearised FRF where its predicted error at the
-    prior, `linearisation_z`, is below `model_error` standard errors in every harmonic, else
-    the nonlinear periodic orbit by shooting), "linear" or "nonlinear". FRF records use the
-    linearised model (the small-signal FRF); in "auto" the lines of a chirp whose predicted
-    error exceeds `model_error` are left out (`frf_left_out`).
+    `model`: "auto" (per sine record, decided at the prior or at `model_theta`: the
+    linearised FRF where its predicted error, `linearisation_z[i][0]`, is below `model_error`
+    standard errors in every harmonic; else the first-order harmonic-balance correction
+    where its own predicted error `linearisation_z[i][1]` is; else the periodic orbit by
+    shooting; see `_choice.py`), "linear", "first-order" or "nonlinear". FRF records use
+    the linearised model (the small-signal FRF); in "auto" the lines of a chirp whose
+    predicted error exceeds `model_error` are left out (`frf_left_out`).
     `nonlinear_ratio`: instead of the error rule, choose by the joint amplitude / preload
     deformation (planning, where the noise is not known yet).
     `priors`: {name: sigma of theta}, "default" (each parameter's `prior_sigma`) or None
@@ -212,7 +214,8 @@ class Problem:
         self.model_theta = None if model_theta is None else np.asarray(model_theta, float)
         systems = {s: _build(base.replace("thermal.speed_rpm", s) if model_theta is None
                              else self.params_at(self.model_theta, s)) for s in self.speeds}
-        self._screen(systems, model == "auto" and nonlinear_ratio is None)
+        # The chirp-line check needs no orbit model: the planner (nonlinear_ratio) gets it too.
+        self._screen(systems, model == "auto" and nonlinear_ratio is None, model == "auto")
         self.models = [
             "frf" if is_frf(d) else model if model != "auto" else
             (("nonlinear" if r > nonlinear_ratio else "linear") if nonlinear_ratio is not None
@@ -238,9 +241,10 @@ class Problem:
         return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
                        frf_left_out=self.frf_left_out, **self._options)
 
-    def _screen(self, systems, errors: bool):
-        """Per record: `amplitude_ratios`, `linearisation_z` (None where not computed) and
-        the sine records' model transfer at the harmonics (`transfer`, for the weights)."""
+    def _screen(self, systems, errors: bool, lines: bool):
+        """Per record: `amplitude_ratios`, `linearisation_z` (None where not computed: sine
+        records unless `errors`, FRF records unless `lines`) and the sine records' model
+        transfer at the harmonics (`transfer`, for the weights)."""
         n = len(self.data)
         self.amplitude_ratios, self.linearisation_z = [0.0] * n, [None] * n
         self.transfer = {}
@@ -254,7 +258,7 @@ class Problem:
         for i, d in enumerate(self.data):
             if is_frf(d):
                 self.amplitude_ratios[i] = frf_amplitude_ratio(systems[d.speed_rpm], d)
-                if errors:
+                if lines:
                     self.linearisation_z[i] = chirp_line_z(systems[d.speed_rpm], d)
 
     def rechosen(self, theta) -> Problem:

@@ -393,6 +393,14 @@ def _identify(src: Sources, v: Values):
     put("speedup_verdict",
         lambda: verdict(bool(d["targets"]["100x_vs_scipy_including_compilation"])))
     put("ours_s", lambda: sig(d["ours"]["wall_s"]))
+    put("cached_speedup", lambda: sig(d["ours_cached"]["speedup"], 2))
+    put("cached_verdict",
+        lambda: verdict(bool(d["targets"]["100x_with_cached_compilation"])))
+    put("default_parameters", lambda: integer(d["default_job"]["parameters"]))
+    put("default_starts", lambda: integer(d["default_job"]["starts"]))
+    put("default_s", lambda: sig(d["default_job"]["wall_s"]))
+    put("default_scipy_s", lambda: sig(d["default_job"]["scipy_wall_s_lower_bound"]))
+    put("default_speedup", lambda: sig(d["default_job"]["speedup_lower_bound"], 2))
     put("ours_warm_s", lambda: sci(d["ours"]["warm_s"]))
     put("scipy_s", lambda: sig(d["scipy"]["wall_s"]))
     put("scipy_basis", lambda: (f"extrapolated from {integer(d['scipy']['nfev'])} residuals"
