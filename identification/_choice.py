@@ -119,3 +119,53 @@ def chirp_line_z(system, data):
     err = np.asarray(_error_lines_jit(system, jnp.asarray(freq), jnp.asarray(force)))[:, 0]
     z = _z(err, np.asarray(data.variance, float))
     return np.where(np.isfinite(z), z, 0.0)
+
+
+def screen(problem, systems, errors: bool, lines: bool):
+    """Per record: `amplitude_ratios`, `linearisation_z` (None where not computed: sine
+    records unless `errors`, FRF records unless `lines`) and the sine records' model
+    transfer at the harmonics (`transfer`, for the weights)."""
+    n = len(problem.data)
+    problem.amplitude_ratios, problem.linearisation_z = [0.0] * n, [None] * n
+    problem.transfer = {}
+    for s in problem.speeds:
+        idx = [i for i, d in enumerate(problem.data) if d.speed_rpm == s and not is_frf(d)]
+        ratios, z, g = screen_sines(systems[s], [problem.data[i] for i in idx],
+                                    problem.max_harmonic_hz, errors)
+        for j, i in enumerate(idx):
+            problem.amplitude_ratios[i], problem.linearisation_z[i] = ratios[j], z[j]
+            problem.transfer[i] = g[j]
+    for i, d in enumerate(problem.data):
+        if is_frf(d):
+            problem.amplitude_ratios[i] = frf_amplitude_ratio(systems[d.speed_rpm], d)
+            if lines:
+                problem.linearisation_z[i] = chirp_line_z(systems[d.speed_rpm], d)
+
+
+def keep_marginal(problem, previous, bound: float):
+    """Where a decision changed from `previous` but its predicted error lies within a factor
+    2 of `bound`, keep `previous`'s decision (see `Problem.rechosen`)."""
+    marginal = lambda z: bound / 2 <= z <= 2 * bound  # noqa: E731
+    order = ("linear", "first-order", "nonlinear")
+    for i, (new, old) in enumerate(zip(problem.models, previous.models)):
+        if new != old and new in order and old in order:
+            lo, hi = sorted((order.index(new), order.index(old)))
+            z = problem.linearisation_z[i]
+            if all(marginal(z[k]) for k in range(lo, hi)):  # every bound crossed
+                problem.models[i] = old
+    for i, z in enumerate(problem.linearisation_z):
+        if is_frf(problem.data[i]) and z is not None:
+            new = problem.frf_left_out.get(i, np.zeros(z.shape, bool))
+            old = previous.frf_left_out.get(i, np.zeros(z.shape, bool))
+            keep = np.where((new != old) & (z >= bound / 2) & (z <= 2 * bound), old, new)
+            if keep.any():
+                problem.frf_left_out[i] = keep
+            else:
+                problem.frf_left_out.pop(i, None)
+
+
+def same_choice(a, b) -> bool:
+    """Whether problems `a` and `b` use the same model per record and leave out the same
+    FRF lines."""
+    return (a.models == b.models and a.frf_left_out.keys() == b.frf_left_out.keys()
+            and all(np.array_equal(v, b.frf_left_out[k]) for k, v in a.frf_left_out.items()))

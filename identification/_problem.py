@@ -31,7 +31,7 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
-from ._choice import MODEL_ERROR, chirp_line_z, frf_amplitude_ratio, is_frf, screen_sines
+from ._choice import MODEL_ERROR, is_frf, keep_marginal, same_choice, screen
 from ._measurement import linear_acceleration, linearisation_error, nonlinear_acceleration
 
 
@@ -161,7 +161,7 @@ class Problem:
     def __init__(self, data, prior, fit=DEFAULT_FIT, model: str = "auto",
                  max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default",
                  nonlinear_ratio: float | None = None, model_error: float = MODEL_ERROR,
-                 frf_left_out: dict | None = None, model_theta=None):
+                 frf_left_out: dict | None = None, model_theta=None, previous=None):
         if not data:
             raise ValueError("no records")
         if model not in ("auto", "linear", "first-order", "nonlinear"):
@@ -215,7 +215,7 @@ class Problem:
         systems = {s: _build(base.replace("thermal.speed_rpm", s) if model_theta is None
                              else self.params_at(self.model_theta, s)) for s in self.speeds}
         # The chirp-line check needs no orbit model: the planner (nonlinear_ratio) gets it too.
-        self._screen(systems, model == "auto" and nonlinear_ratio is None, model == "auto")
+        screen(self, systems, model == "auto" and nonlinear_ratio is None, model == "auto")
         self.models = [
             "frf" if is_frf(d) else model if model != "auto" else
             (("nonlinear" if r > nonlinear_ratio else "linear") if nonlinear_ratio is not None
@@ -228,6 +228,8 @@ class Problem:
                              if is_frf(d) and z is not None and np.any(np.asarray(z) > model_error)}
         if frf_left_out is not None:
             self.frf_left_out = dict(frf_left_out)
+        if previous is not None:
+            keep_marginal(self, previous, model_error)
         self.groups, self.layout = self._build_groups()
         self._residual_jit = eqx.filter_jit(self.residual)
         self._jac_jit = eqx.filter_jit(jax.jacfwd(self.residual))
@@ -241,37 +243,18 @@ class Problem:
         return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
                        frf_left_out=self.frf_left_out, **self._options)
 
-    def _screen(self, systems, errors: bool, lines: bool):
-        """Per record: `amplitude_ratios`, `linearisation_z` (None where not computed: sine
-        records unless `errors`, FRF records unless `lines`) and the sine records' model
-        transfer at the harmonics (`transfer`, for the weights)."""
-        n = len(self.data)
-        self.amplitude_ratios, self.linearisation_z = [0.0] * n, [None] * n
-        self.transfer = {}
-        for s in self.speeds:
-            idx = [i for i, d in enumerate(self.data) if d.speed_rpm == s and not is_frf(d)]
-            ratios, z, g = screen_sines(systems[s], [self.data[i] for i in idx],
-                                        self.max_harmonic_hz, errors)
-            for j, i in enumerate(idx):
-                self.amplitude_ratios[i], self.linearisation_z[i] = ratios[j], z[j]
-                self.transfer[i] = g[j]
-        for i, d in enumerate(self.data):
-            if is_frf(d):
-                self.amplitude_ratios[i] = frf_amplitude_ratio(systems[d.speed_rpm], d)
-                if lines:
-                    self.linearisation_z[i] = chirp_line_z(systems[d.speed_rpm], d)
-
     def rechosen(self, theta) -> Problem:
         """The same problem with its models and left-out lines decided at `theta` instead of
-        the prior (`fit` checks its choice at the estimate this way)."""
+        the prior (`fit` checks its choice at the estimate this way). A decision changes
+        only where its predicted error is clearly on the other side of the bound (outside
+        a factor 2 of it); marginal ones keep this problem's (hysteresis: a line whose
+        error sits at the bound would otherwise flip with every small move)."""
         return Problem(self.data, self.prior, self.fit, priors=self.priors, model_theta=theta,
-                       **self._choice, **self._options)
+                       previous=self, **self._choice, **self._options)
 
     def same_choice(self, other: Problem) -> bool:
         """Whether `other` uses the same model per record and leaves out the same lines."""
-        return (self.models == other.models and self.frf_left_out.keys() ==
-                other.frf_left_out.keys() and all(np.array_equal(v, other.frf_left_out[k])
-                                                  for k, v in self.frf_left_out.items()))
+        return same_choice(self, other)
 
     def rj(self, theta, groups=None):
         """(residual, Jacobian) as numpy arrays: one compiled function for every use."""
