@@ -12,7 +12,8 @@ Public API (the package uses only the public API of `bsfs_jax`):
 - measurement model: `harmonic_analysis`, `HarmonicData`;
 - fitting: `FIT_PARAMETERS`, `DEFAULT_FIT`, `PRELOAD_FIT`, `MODEL_ERROR`, `parse_fit`,
   `parse_priors`, `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
-- uncertainty: `uncertainty`, `Uncertainty`, `profile_intervals`;
+- uncertainty: `uncertainty`, `Uncertainty`, `profile_intervals`, `posterior` (NUTS),
+  `Posterior`, `posterior_text`;
 - reports: `report_dict`, `parameter_rows`, `summary_text`, `preload_verdicts`,
   `write_identified`;
 - test planning: `plan_test`, `candidate_plans`;
@@ -35,6 +36,9 @@ from ._plan import candidate_plans as candidate_plans
 from ._plan import fisher_std as fisher_std
 from ._plan import plan_from_records as plan_from_records
 from ._plan import plan_test as plan_test
+from ._posterior import Posterior as Posterior
+from ._posterior import posterior as posterior
+from ._posterior import posterior_text as posterior_text
 from ._problem import DEFAULT_FIT as DEFAULT_FIT
 from ._problem import FIT_PARAMETERS as FIT_PARAMETERS
 from ._problem import PRELOAD_FIT as PRELOAD_FIT

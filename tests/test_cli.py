@@ -157,6 +157,12 @@ def _cases(tmp_path):
         "identify record above the band": (
             ["identify", str(tmp_path / "hf.csv"), "--out", str(tmp_path / "o10")], 1,
             "above the usable band"),
+        "identify posterior with too few draws": (
+            ["identify", "--posterior", "50", "--out", str(tmp_path / "o12")], 1,
+            "at least 100 draws"),
+        "identify posterior without priors": (
+            ["identify", "--posterior", "200", "--no-priors", "--out", str(tmp_path / "o13")],
+            1, "needs priors"),
         "plan-test noise above 120 dB": (["plan-test", "--noise-db", "500", "--out",
                                          str(tmp_path / "o11")], 2, "from 0 to 120 dB"),
     }

@@ -58,6 +58,11 @@ def register(sub) -> None:
     p.add_argument("--max-steps", type=count(1, 100_000), default=100,
                    help="LM iterations per start (100)")
     p.add_argument("--seed", type=count(0, 2**32 - 1), default=0)
+    p.add_argument("--posterior", type=count(0, 100_000), default=0, metavar="DRAWS",
+                   help="also sample the posterior by NUTS (blackjax), DRAWS per chain "
+                   "after as many warm-up steps, 4 chains; posterior.json with R-hat and "
+                   "effective sample sizes (needs priors and no periodic-orbit records; "
+                   "0: off)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -95,6 +100,11 @@ def run_identify(args) -> int:
     names = _fit_names(args.fit)
     if args.no_priors and args.prior:
         raise CLIError("--prior and --no-priors contradict each other; give one")
+    if 0 < args.posterior < 100:
+        raise CLIError("--posterior: give at least 100 draws per chain (or 0 for none)")
+    if args.posterior and args.no_priors:
+        raise CLIError("--posterior needs priors (without them an undetermined parameter "
+                       "has an improper posterior); drop --no-priors")
     try:
         priors = None if args.no_priors else idn.parse_priors(args.prior, names)
     except ValueError as exc:
@@ -113,6 +123,9 @@ def run_identify(args) -> int:
     except (idn.RecordError, ValueError) as exc:
         raise CLIError(str(exc)) from None
     report = idn.report_dict(res)
+    if args.posterior:
+        report["posterior"] = _posterior(res, args)
+        report["summary"] += "\n" + idn.posterior_text(report["posterior"], report)
     paths = idn.write_identified(res, out)
     write_json(out / "report.json", report)
     written = [*paths, out / "report.json"]
@@ -146,6 +159,17 @@ def run_identify(args) -> int:
     print(report["summary"])
     print(f"\nwrote {', '.join(str(p) for p in written)} ({time.perf_counter() - t0:.1f} s)")
     return 0 if res.fit.converged else 4
+
+
+def _posterior(res, args) -> dict:
+    import identification as idn
+
+    try:
+        post = idn.posterior(res.fit, res.uncertainty, samples=args.posterior,
+                             warmup=args.posterior, chains=4, seed=args.seed)
+    except ValueError as exc:
+        raise CLIError(f"--posterior: {exc}") from None
+    return post.as_dict()
 
 
 def _read_report(other_dir):
