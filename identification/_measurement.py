@@ -160,6 +160,14 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
 # ----------------------------------------------------------------------------- model side
 
 
+def _matrices(system):
+    """(K, C, M) of the model linearised about x = 0 (see `receptance`)."""
+    zero = jnp.zeros(3)
+    k = jax.jacfwd(lambda x: restoring_forces(system, x, zero))(zero)
+    c = jax.jacfwd(lambda v: restoring_forces(system, zero, v))(zero)
+    return k, c, jnp.diag(system.mass)
+
+
 def receptance(system, frequencies_hz):
     """Complex receptance x_j / P [m/N], shape (len(f), 3), linearised about x = 0.
 
@@ -170,10 +178,7 @@ def receptance(system, frequencies_hz):
     trial parameter set of the optimiser loses the preload (singular stiffness -> inf, which
     the optimiser rejects) instead of raising inside the implicit derivative of the solve.
     """
-    zero = jnp.zeros(3)
-    k = jax.jacfwd(lambda x: restoring_forces(system, x, zero))(zero)
-    c = jax.jacfwd(lambda v: restoring_forces(system, zero, v))(zero)
-    m = jnp.diag(system.mass)
+    k, c, m = _matrices(system)
     rhs = jnp.array([0.0, 0.0, 1.0], dtype=complex)
 
     def one(w):
@@ -192,13 +197,6 @@ def linear_acceleration(system, frequencies_hz, force_coeffs):
     h = receptance(system, frequencies_hz.reshape(-1))[:, 2].reshape(shape)
     w = 2.0 * jnp.pi * frequencies_hz
     return -(w**2) * h * force_coeffs
-
-
-def _matrices(system):
-    zero = jnp.zeros(3)
-    k = jax.jacfwd(lambda x: restoring_forces(system, x, zero))(zero)
-    c = jax.jacfwd(lambda v: restoring_forces(system, zero, v))(zero)
-    return k, c, jnp.diag(system.mass)
 
 
 def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLINEAR_SAMPLES,
