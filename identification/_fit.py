@@ -24,6 +24,7 @@ from ._problem import Problem
 
 STEP_TOL = 0.01  # remaining Gauss-Newton step / its standard error
 SAME_COST_RTOL = 1e-6
+MAX_REFITS = 3  # repeated fits after the model choice changed at the estimate
 
 
 @dataclasses.dataclass
@@ -123,16 +124,17 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     result = _fit_from(problem, points, max_steps)
     auto = problem._choice["model"] == "auto" and problem._choice["nonlinear_ratio"] is None
     if check_models and auto:
-        for attempt in range(2):
+        for attempt in range(MAX_REFITS + 1):
             again = result.problem.rechosen(result.theta)
             if again.same_choice(result.problem):
                 result.model_choice = "confirmed" if attempt == 0 else "refitted"
                 break
+            if attempt == MAX_REFITS:
+                result.model_choice = "unsettled"
+                result.converged = False
+                break
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
                                max_steps)
-        else:
-            result.model_choice = "unsettled"
-            result.converged = False
     result.seconds = time.perf_counter() - t0
     return result
 
