@@ -290,7 +290,9 @@ def part_chirp():
     t1 = time.perf_counter()
     again = idn.fit(res.problem)  # same starts (3) as identify's
     warm = time.perf_counter() - t1
-    assert np.allclose(again.theta, res.fit.theta, atol=1e-6)
+    # The same minimum (the repeat starts from the final model choice; both stop when the
+    # remaining step is below 1 % of its standard error).
+    assert np.all(np.abs(again.theta - res.fit.theta) < 0.05 * res.uncertainty.scaled_std)
     rows = idn.parameter_rows(res)
     worn = bsfs_jax.load_params(idn.DATA_DIR / "worn.toml")
     (frf,) = res.data
