@@ -44,7 +44,7 @@ class FitResult:
     # How the models per record (and left-out chirp lines) were decided: "prior" (fixed by
     # the caller), "confirmed" (the choice at the estimate is the one fitted), "refitted"
     # (it differed; the fit was repeated with the choice at the estimate, then confirmed),
-    # "unsettled" (it still changed after the repeat).
+    # "unsettled" (it still changed after MAX_REFITS repeats: the fit is then not converged).
     model_choice: str = "prior"
 
     @property
@@ -109,7 +109,8 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     records use the periodic-orbit model, each start is first carried to the optimum of the
     linearised problem (cheap), and the full fit starts from there. `check_models`: where the
     problem chose its models itself (model "auto"), the choice is made again at the estimate
-    (`Problem.rechosen`); if it differs, the fit is repeated with it from the starts' optima.
+    (`Problem.rechosen`); if it differs, the fit is repeated with it from the starts' optima,
+    up to `MAX_REFITS` times.
     """
     t0 = time.perf_counter()
     points = start_points(problem, starts, seed)

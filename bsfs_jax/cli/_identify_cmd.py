@@ -60,8 +60,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=count(0, 2**32 - 1), default=0)
     p.add_argument("--posterior", type=count(0, 100_000), default=0, metavar="DRAWS",
                    help="also sample the posterior by NUTS (blackjax), DRAWS per chain "
-                   "after as many warm-up steps, 4 chains; posterior.json with R-hat and "
-                   "effective sample sizes (needs priors and no periodic-orbit records; "
+                   "after as many warm-up steps, 4 chains; report.json's 'posterior' with "
+                   "R-hat and effective sample sizes (needs priors and no periodic-orbit records; "
                    "0: off)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
