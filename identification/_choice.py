@@ -6,7 +6,14 @@ errors in every usable harmonic; else the first-order model (linear + that step)
 more step changes it by less than `MODEL_ERROR`; else the periodic orbit (shooting). A
 chirp's FRF lines whose predicted linear-model error exceeds `MODEL_ERROR` are left out
 (the FRF of a sweep has no steady-state nonlinear model). `Problem` makes the choice at the
-prior and `fit` makes it again at the estimate.
+prior and `fit` makes it again at the estimate, where decisions within a factor 2 of the
+bound keep their previous value (`keep_marginal`).
+
+The chirp rule is a screen, not a model of the sweep: the steady-state amplitude at each
+line bounds the swept response from above, and a one-step prediction of how the kept
+lines' remaining error shifts the estimates came out with the wrong sign against
+noise-free replicates (so it is not reported). What the rule achieves is measured by the
+coverage study (docs/COVERAGE.md).
 """
 
 from __future__ import annotations
