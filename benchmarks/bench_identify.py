@@ -450,13 +450,29 @@ def cached(tmp):
                 process_s=proc)
 
 
+def repeated_part(name, repeats, keys, show):
+    """`run_part(name)` `repeats` times in fresh processes: the last run's dict with the
+    median of each of `keys` (`process_s`: the process's wall seconds) and `<keys[0]>_runs`,
+    every run's first key; `show(run)` is printed per run."""
+    runs = []
+    for _ in range(repeats):
+        res, proc = run_part(name)
+        res["process_s"] = proc
+        runs.append(res)
+        print("  " + show(res), flush=True)
+    out = dict(runs[-1])
+    for key in keys:
+        out[key] = _median([r[key] for r in runs])
+    out[f"{keys[0]}_runs"] = [r[keys[0]] for r in runs]
+    return out
+
+
 def default_job(repeats, seconds_per_residual):
     """Ours measured; scipy's lower bound from its measured seconds per residual: each
     start needs at least 1 + (p + 1) x (our iterations) residuals with a 2-point Jacobian."""
-    runs = [run_part("default")[0] for _ in range(repeats)]
-    d = dict(runs[-1])
-    d["wall_s"] = _median([r["wall_s"] for r in runs])
-    d["wall_s_runs"] = [r["wall_s"] for r in runs]
+    d = repeated_part("default", repeats, ("wall_s",),
+                      lambda r: f"default job: {r['wall_s']:.2f} s")
+    d.pop("process_s")
     residuals = sum(1 + (d["parameters"] + 1) * max(n, 1) for n in d["iterations_per_start"])
     d["scipy_residuals_lower_bound"] = residuals
     d["scipy_wall_s_lower_bound"] = residuals * seconds_per_residual
@@ -467,18 +483,11 @@ def default_job(repeats, seconds_per_residual):
 
 
 def compare(repeats, quick):
-    runs = []
-    for _ in range(repeats):
-        res, proc = run_part("ours")
-        res["process_s"] = proc
-        runs.append(res)
-        print(f"  ours: {res['wall_s']:.2f} s cold (Problem {res['setup_s']:.2f} s + fit "
-              f"{res['fit_s']:.2f} s), {res['warm_s'] * 1e3:.1f} ms warm, "
-              f"{res['iterations']} iterations", flush=True)
-    ours = dict(runs[-1])
-    for key in ("wall_s", "setup_s", "fit_s", "warm_s", "process_s"):
-        ours[key] = _median([r[key] for r in runs])
-    ours["wall_s_runs"] = [r["wall_s"] for r in runs]
+    ours = repeated_part(
+        "ours", repeats, ("wall_s", "setup_s", "fit_s", "warm_s", "process_s"),
+        lambda r: (f"ours: {r['wall_s']:.2f} s cold (Problem {r['setup_s']:.2f} s + fit "
+                   f"{r['fit_s']:.2f} s), {r['warm_s'] * 1e3:.1f} ms warm, "
+                   f"{r['iterations']} iterations"))
     ours["method"] = ("identification.Problem + fit: MINPACK Levenberg-Marquardt (scipy) on "
                       "log-parameters around one compiled JAX residual-and-Jacobian "
                       "(forward mode), linearised-FRF harmonic model; maximum likelihood, "
@@ -662,17 +671,12 @@ def main(argv=None):
         print("end to end: preload loss", flush=True)
         pl = preload_loss(repeats, tmp)
         print("chirp fit", flush=True)
-        chirps = []
-        for _ in range(repeats):
-            res, proc = run_part("chirp")
-            res["process_s"] = proc
-            chirps.append(res)
-            print(f"  chirp: {res['seconds_cold']:.1f} s cold (fit {res['fit_seconds_cold']:.2f}"
-                  f" s), fit warm {res['fit_seconds_warm']:.3f} s", flush=True)
-        chirp = dict(chirps[-1], record=CHIRP)
-        for key in ("seconds_cold", "fit_seconds_cold", "fit_seconds_warm", "process_s"):
-            chirp[key] = _median([c[key] for c in chirps])
-        chirp["seconds_cold_runs"] = [c["seconds_cold"] for c in chirps]
+        chirp = repeated_part(
+            "chirp", repeats, ("seconds_cold", "fit_seconds_cold", "fit_seconds_warm",
+                               "process_s"),
+            lambda r: (f"chirp: {r['seconds_cold']:.1f} s cold (fit {r['fit_seconds_cold']:.2f}"
+                       f" s), fit warm {r['fit_seconds_warm']:.3f} s"))
+        chirp["record"] = CHIRP
         print("make demo (identification commands)", flush=True)
         dm = demo(tmp)
     truth = json.loads(json.dumps(_truth_values()))

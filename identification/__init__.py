@@ -36,6 +36,7 @@ from ._plan import candidate_plans as candidate_plans
 from ._plan import fisher_std as fisher_std
 from ._plan import plan_from_records as plan_from_records
 from ._plan import plan_test as plan_test
+from ._posterior import MIN_DRAWS as MIN_DRAWS
 from ._posterior import Posterior as Posterior
 from ._posterior import posterior as posterior
 from ._posterior import posterior_text as posterior_text

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._measurement import linearisation_error, receptance
+from ._measurement import chord_corrections, linearisation_error, receptance
 
 # The bound on a model's predicted error, in standard errors of each entry. Per entry it is
 # small against the noise; summed over many entries (a chirp's lines) a deterministic error
@@ -52,10 +52,8 @@ def _sine_kernel(system, freq, harmonics, force, errors: bool):
     transfer = -((2.0 * jnp.pi * fk) ** 2) * h[..., 2]
     if not errors:
         return u_bearing, u_nut, transfer, None, None
-    steps = lambda f, fc: (linearisation_error(system, f, fc),
-                           linearisation_error(system, f, fc, steps=2))
-    one, two = jax.vmap(steps)(freq, force)
-    return u_bearing, u_nut, transfer, one, two
+    both = jax.vmap(lambda f, fc: chord_corrections(system, f, fc, 2))(freq, force)
+    return u_bearing, u_nut, transfer, both[:, 0], both[:, 1]
 
 
 def _preload_deformations(system):
@@ -128,47 +126,51 @@ def chirp_line_z(system, data):
     return np.where(np.isfinite(z), z, 0.0)
 
 
-def screen(problem, systems, errors: bool, lines: bool):
-    """Per record: `amplitude_ratios`, `linearisation_z` (None where not computed: sine
-    records unless `errors`, FRF records unless `lines`) and the sine records' model
-    transfer at the harmonics (`transfer`, for the weights)."""
-    n = len(problem.data)
-    problem.amplitude_ratios, problem.linearisation_z = [0.0] * n, [None] * n
-    problem.transfer = {}
-    for s in problem.speeds:
-        idx = [i for i, d in enumerate(problem.data) if d.speed_rpm == s and not is_frf(d)]
-        ratios, z, g = screen_sines(systems[s], [problem.data[i] for i in idx],
-                                    problem.max_harmonic_hz, errors)
+def screen(data, speeds, systems, max_harmonic_hz, errors: bool, lines: bool):
+    """Per record (lists in data order): amplitude ratios, predicted model errors (None where
+    not computed: sine records unless `errors`, FRF records unless `lines`); and {record:
+    model transfer at its harmonics} for the sine records (the weights' G)."""
+    n = len(data)
+    ratios, z, transfer = [0.0] * n, [None] * n, {}
+    for s in speeds:
+        idx = [i for i, d in enumerate(data) if d.speed_rpm == s and not is_frf(d)]
+        r_s, z_s, g_s = screen_sines(systems[s], [data[i] for i in idx], max_harmonic_hz,
+                                     errors)
         for j, i in enumerate(idx):
-            problem.amplitude_ratios[i], problem.linearisation_z[i] = ratios[j], z[j]
-            problem.transfer[i] = g[j]
-    for i, d in enumerate(problem.data):
+            ratios[i], z[i], transfer[i] = r_s[j], z_s[j], g_s[j]
+    for i, d in enumerate(data):
         if is_frf(d):
-            problem.amplitude_ratios[i] = frf_amplitude_ratio(systems[d.speed_rpm], d)
+            ratios[i] = frf_amplitude_ratio(systems[d.speed_rpm], d)
             if lines:
-                problem.linearisation_z[i] = chirp_line_z(systems[d.speed_rpm], d)
+                z[i] = chirp_line_z(systems[d.speed_rpm], d)
+    return ratios, z, transfer
 
 
 def keep_marginal(problem, previous, bound: float):
-    """Where a decision changed from `previous` but its predicted error lies within a factor
-    2 of `bound`, keep `previous`'s decision (see `Problem.rechosen`)."""
-    marginal = lambda z: bound / 2 <= z <= 2 * bound  # noqa: E731
+    """(models, frf_left_out) of `problem`, except that where a decision changed from
+    `previous` but its predicted error lies within a factor 2 of `bound`, `previous`'s
+    decision is kept (see `Problem.rechosen`)."""
     order = ("linear", "first-order", "nonlinear")
+    models, left_out = list(problem.models), {}
     for i, (new, old) in enumerate(zip(problem.models, previous.models)):
         if new != old and new in order and old in order:
             lo, hi = sorted((order.index(new), order.index(old)))
             z = problem.linearisation_z[i]
-            if all(marginal(z[k]) for k in range(lo, hi)):  # every bound crossed
-                problem.models[i] = old
+            if all(marginal_mask(z[k], bound) for k in range(lo, hi)):  # every bound crossed
+                models[i] = old
     for i, z in enumerate(problem.linearisation_z):
         if is_frf(problem.data[i]) and z is not None:
             new = problem.frf_left_out.get(i, np.zeros(z.shape, bool))
             old = previous.frf_left_out.get(i, np.zeros(z.shape, bool))
-            keep = np.where((new != old) & (z >= bound / 2) & (z <= 2 * bound), old, new)
+            keep = np.where((new != old) & marginal_mask(z, bound), old, new)
             if keep.any():
-                problem.frf_left_out[i] = keep
-            else:
-                problem.frf_left_out.pop(i, None)
+                left_out[i] = keep
+    return models, left_out
+
+
+def marginal_mask(z, bound):
+    """Where a predicted error is within a factor 2 of the bound (elementwise)."""
+    return (np.asarray(z) >= bound / 2) & (np.asarray(z) <= 2 * bound)
 
 
 def same_choice(a, b) -> bool:

@@ -123,8 +123,7 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
                                       rows=lin_rows, max_std=no_information_std(problem)).theta
                   for th0 in points]
     result = _fit_from(problem, points, max_steps)
-    auto = problem._choice["model"] == "auto" and problem._choice["nonlinear_ratio"] is None
-    if check_models and auto:
+    if check_models and problem.chooses_models:
         for attempt in range(MAX_REFITS + 1):
             again = result.problem.rechosen(result.theta)
             if again.same_choice(result.problem):

@@ -214,6 +214,13 @@ def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLI
     shift and the harmonics above H are left out: for strong nonlinearity use the periodic
     orbit (`nonlinear_acceleration`).
     """
+    return chord_corrections(system, frequency_hz, force_coeffs, steps, samples)[-1]
+
+
+def chord_corrections(system, frequency_hz, force_coeffs, steps: int,
+                      samples: int = NONLINEAR_SAMPLES):
+    """`linearisation_error` after 1, 2, ..., `steps` chord steps, stacked (steps, H): one
+    iteration gives every step (the model choice needs the first two)."""
     k_mat, c_mat, m_mat = _matrices(system)
     h = force_coeffs.shape[-1]
     kk = jnp.arange(1, h + 1)
@@ -231,10 +238,11 @@ def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLI
         coeff = (2.0 / samples) * (jnp.conj(phase).T @ restoring_forces(system, xs, vs))
         return coeff + (-(w**2)[:, None] * (x @ m_mat.T)) - rhs
 
-    x = x_lin
+    x, out = x_lin, []
     for _ in range(steps):
         x = x - jnp.linalg.solve(dyn, residual(x)[..., None])[..., 0]
-    return -(w**2) * (x - x_lin)[:, 2]
+        out.append(-(w**2) * (x - x_lin)[:, 2])
+    return jnp.stack(out)
 
 
 def _forcing(frequency_hz, force_coeffs):

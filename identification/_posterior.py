@@ -29,6 +29,7 @@ with periodic-orbit records are refused; linear and first-order records are plai
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import jax
 import jax.numpy as jnp
@@ -36,6 +37,7 @@ import numpy as np
 
 RHAT_MAX = 1.01
 ESS_PER_CHAIN_MIN = 100
+MIN_DRAWS = 100  # warm-up steps and draws per chain, at least
 
 
 @dataclasses.dataclass
@@ -74,8 +76,6 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
     `result`: a `FitResult`; `unc`: its `Uncertainty` (start jitter, noise scale).
     Raises ValueError where the sampler cannot apply (no priors, periodic-orbit records).
     """
-    import time
-
     import blackjax
     from blackjax.diagnostics import effective_sample_size, potential_scale_reduction
 
@@ -87,8 +87,9 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
         raise ValueError("the posterior sample needs records on the linear or first-order "
                          "model; periodic-orbit records are differentiated in forward mode "
                          "only")
-    if samples < 100 or warmup < 100 or chains < 2:
-        raise ValueError("use at least 2 chains, 100 warm-up steps and 100 samples")
+    if samples < MIN_DRAWS or warmup < MIN_DRAWS or chains < 2:
+        raise ValueError(f"use at least 2 chains, {MIN_DRAWS} warm-up steps and "
+                         f"{MIN_DRAWS} draws per chain")
     t0 = time.perf_counter()
     n_data = pb.used_mask().size
     scale = float(unc.noise.get("scaled_by", 1.0))

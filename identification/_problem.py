@@ -215,7 +215,9 @@ class Problem:
         systems = {s: _build(base.replace("thermal.speed_rpm", s) if model_theta is None
                              else self.params_at(self.model_theta, s)) for s in self.speeds}
         # The chirp-line check needs no orbit model: the planner (nonlinear_ratio) gets it too.
-        screen(self, systems, model == "auto" and nonlinear_ratio is None, model == "auto")
+        self.amplitude_ratios, self.linearisation_z, self.transfer = screen(
+            self.data, self.speeds, systems, self.max_harmonic_hz,
+            model == "auto" and nonlinear_ratio is None, model == "auto")
         self.models = [
             "frf" if is_frf(d) else model if model != "auto" else
             (("nonlinear" if r > nonlinear_ratio else "linear") if nonlinear_ratio is not None
@@ -229,10 +231,8 @@ class Problem:
         if frf_left_out is not None:
             self.frf_left_out = dict(frf_left_out)
         if previous is not None:
-            keep_marginal(self, previous, model_error)
+            self.models, self.frf_left_out = keep_marginal(self, previous, model_error)
         self.groups, self.layout = self._build_groups()
-        self._residual_jit = eqx.filter_jit(self.residual)
-        self._jac_jit = eqx.filter_jit(jax.jacfwd(self.residual))
         both = lambda th, g: (self.residual(th, g),) * 2
         self._rj_jit = eqx.filter_jit(jax.jacfwd(both, has_aux=True))
         self._predict_jit = eqx.filter_jit(self.predict)
@@ -242,6 +242,12 @@ class Problem:
         for the periodic-orbit fit)."""
         return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
                        frf_left_out=self.frf_left_out, **self._options)
+
+    @property
+    def chooses_models(self) -> bool:
+        """Whether the models per record follow the predicted-error rule (model "auto"
+        without a planning ratio), so that `fit` may re-choose them at the estimate."""
+        return self._choice["model"] == "auto" and self._choice["nonlinear_ratio"] is None
 
     def rechosen(self, theta) -> Problem:
         """The same problem with its models and left-out lines decided at `theta` instead of

@@ -121,8 +121,8 @@ def _fd_jacobian(fn, theta, eps=1e-6):
 def test_residual_gradient_matches_finite_differences(paper_problem):
     pb = paper_problem
     theta = np.random.default_rng(0).normal(0, 0.1, pb.n_params)
-    jac = np.asarray(pb._jac_jit(jnp.asarray(theta), pb.groups))
-    fd = _fd_jacobian(lambda th: pb._residual_jit(th, pb.groups), theta)
+    jac = pb.rj(theta)[1]
+    fd = _fd_jacobian(lambda th: pb.rj(th)[0], theta)
     scale = np.max(np.abs(jac), axis=0)
     np.testing.assert_allclose(jac / scale, fd / scale, atol=1e-5)
 
@@ -133,10 +133,10 @@ def test_nonlinear_residual_gradient_matches_finite_differences():
     pb = idn.Problem(data, bsfs_jax.preset(), ("nut_k", "c_n", "expansion"))
     assert pb.models == ["nonlinear"]
     theta = np.array([0.05, 0.1, 0.1])
-    jac = np.asarray(pb._jac_jit(jnp.asarray(theta), pb.groups))
+    jac = pb.rj(theta)[1]
     # eps 1e-3: the adaptive solver makes the residual noisy at ~1e-8 relative, which a
     # smaller step would amplify; the truncation error at 1e-3 is ~1e-6.
-    fd = _fd_jacobian(lambda th: pb._residual_jit(th, pb.groups), theta, eps=1e-3)
+    fd = _fd_jacobian(lambda th: pb.rj(th)[0], theta, eps=1e-3)
     scale = np.max(np.abs(jac), axis=0)
     np.testing.assert_allclose(jac / scale, fd / scale, atol=2e-3)
 

@@ -3,6 +3,8 @@ file, the line and what to do (no JAX needed)."""
 
 import numpy as np
 import pytest
+from _signals import F0, FS, META
+from _signals import signals as _signals
 
 from identification import (
     RecordError,
@@ -12,20 +14,6 @@ from identification import (
     write_record_uff,
 )
 from identification._csv import format_record_csv
-
-FS = 10240.0
-F0 = 120.0
-META = dict(frequency_hz=F0, force_amplitude_n=100.0, sample_rate_hz=FS, speed_rpm=2000.0,
-            ambient_c=20.0)
-
-
-def _signals(n=4096, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) / FS
-    force = 100 * np.sin(2 * np.pi * F0 * t + 0.3) + 4 * np.sin(4 * np.pi * F0 * t) \
-        + rng.normal(0, 1, n)
-    acc = 0.4 * np.sin(2 * np.pi * F0 * t + 0.31) + rng.normal(0, 0.005, n)
-    return t, force, acc
 
 
 def _write(tmp_path, text, name="rec.csv"):

@@ -9,22 +9,12 @@ import pytest
 
 nptdms = pytest.importorskip("nptdms")
 
+from _signals import F0, FS, META  # noqa: E402
+from _signals import signals as _signals  # noqa: E402
+
 from identification import Record, RecordError, load_record, load_tdms, write_record_tdms
 
-FS = 10240.0
-F0 = 120.0
-META = dict(frequency_hz=F0, force_amplitude_n=100.0, sample_rate_hz=FS, speed_rpm=2000.0,
-            ambient_c=20.0)
 G = 9.80665
-
-
-def _signals(n=4096, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) / FS
-    force = 100 * np.sin(2 * np.pi * F0 * t + 0.3) + 4 * np.sin(4 * np.pi * F0 * t) \
-        + rng.normal(0, 1, n)
-    acc = 0.4 * np.sin(2 * np.pi * F0 * t + 0.31) + rng.normal(0, 0.005, n)
-    return t, force, acc
 
 
 def _write(path, channels, group="Untitled", group_props=None, file_props=None, groups=()):

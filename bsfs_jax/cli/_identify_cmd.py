@@ -100,8 +100,9 @@ def run_identify(args) -> int:
     names = _fit_names(args.fit)
     if args.no_priors and args.prior:
         raise CLIError("--prior and --no-priors contradict each other; give one")
-    if 0 < args.posterior < 100:
-        raise CLIError("--posterior: give at least 100 draws per chain (or 0 for none)")
+    if 0 < args.posterior < idn.MIN_DRAWS:
+        raise CLIError(f"--posterior: give at least {idn.MIN_DRAWS} draws per chain (or 0 "
+                       "for none)")
     if args.posterior and args.no_priors:
         raise CLIError("--posterior needs priors (without them an undetermined parameter "
                        "has an improper posterior); drop --no-priors")
