@@ -1,7 +1,9 @@
-"""Multi-start Levenberg-Marquardt fit of a `Problem`, with its own convergence evidence.
+"""Multi-start fit of a `Problem` (optimistix), with its own convergence evidence.
 
-The optimiser (Levenberg-Marquardt on the host around one compiled residual-and-Jacobian
-function, `_lm.py`) stops on its own tolerances; that alone is not taken as convergence.
+The optimiser (Levenberg-Marquardt by optimistix, every start one lane of one compiled,
+vmapped solve: `_solve.py`) stops on the remaining-step test below or on its own
+tolerances; either way the test is made again at the returned point, and only that is taken
+as convergence.
 At the optimum the Gauss-Newton step that would remain is computed from the residual and
 Jacobian: in the SVD J = U S V^T, the step's component along v_k is (U^T r)_k / s_k and
 its standard error is 1 / s_k, so |(U^T r)_k| is the remaining step in units of its own
@@ -19,8 +21,9 @@ import time
 
 import numpy as np
 
-from ._lm import NO_INFORMATION_STD, gn_step_sigma, levenberg_marquardt
+from ._lm import NO_INFORMATION_STD, gn_step_sigma
 from ._problem import Problem
+from ._solve import SolveOptions, solve
 
 STEP_TOL = 0.01  # remaining Gauss-Newton step / its standard error
 SAME_COST_RTOL = 1e-6
@@ -102,7 +105,8 @@ def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
 
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
-        theta0=None, warm_start: bool = True, check_models: bool = True) -> FitResult:
+        theta0=None, warm_start: bool = True, check_models: bool = True,
+        method: str = "dogleg") -> FitResult:
     """Fit from several starts; the lowest cost wins and every start is reported.
 
     `theta0` replaces the prior as start 0 (e.g. a previous optimum). `warm_start`: where
@@ -110,19 +114,20 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     linearised problem (cheap), and the full fit starts from there. `check_models`: where the
     problem chose its models itself (model "auto"), the choice is made again at the estimate
     (`Problem.rechosen`); if it differs, the fit is repeated with it from the starts' optima,
-    up to `MAX_REFITS` times.
+    up to `MAX_REFITS` times. `max_steps` bounds the optimiser's accepted steps (2 x
+    `max_steps` steps with the rejected ones); `method` its descent (`_solve.make_solver`).
     """
     t0 = time.perf_counter()
     points = start_points(problem, starts, seed)
     if theta0 is not None:
         points[0] = np.asarray(theta0, float)
+    options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
     if warm_start and "nonlinear" in problem.models:
         lin = problem.linearised()
-        lin_rows = full_used_mask(lin)
-        points = [levenberg_marquardt(lin.rj, th0, max_steps=max_steps, tol=0.1,
-                                      rows=lin_rows, max_std=no_information_std(problem)).theta
-                  for th0 in points]
-    result = _fit_from(problem, points, max_steps)
+        warm = solve(np.stack(points), True, lin.fit_data, lin.structure,
+                     dataclasses.replace(options, step_tol=0.1))
+        points = list(warm["theta"])
+    result = _fit_from(problem, points, options)
     if check_models and problem.chooses_models:
         for attempt in range(MAX_REFITS + 1):
             again = result.problem.rechosen(result.theta)
@@ -134,32 +139,40 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
                 result.converged = False
                 break
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
-                               max_steps)
+                               options)
     result.seconds = time.perf_counter() - t0
     return result
 
 
-def _fit_from(problem: Problem, points, max_steps: int) -> FitResult:
+def _fit_from(problem: Problem, points, options: SolveOptions) -> FitResult:
     t0 = time.perf_counter()
     rows = full_used_mask(problem)
+    out = solve(np.stack(points), True, problem.fit_data, problem.structure, options)
+    keep = problem._residual_rows(out["residual"].shape[1])
+    max_std = no_information_std(problem)
     runs = []
-    for th0 in points:
-        out = levenberg_marquardt(problem.rj, th0, max_steps=max_steps, tol=0.1 * STEP_TOL,
-                                  rows=rows, max_std=no_information_std(problem))
-        runs.append(dict(start=problem.values(np.asarray(th0)).tolist(), result=out,
-                         cost=out.cost, steps=out.steps, evaluations=out.evaluations,
-                         optimizer_converged=out.converged, stop=out.reason))
-    best = min(runs, key=lambda d: d["cost"])
-    lm = best["result"]
+    for k, th0 in enumerate(points):
+        r, j = out["residual"][k][keep], out["jacobian"][k][keep]
+        step = remaining_step(r, j, rows, max_std)
+        runs.append(dict(start=problem.values(np.asarray(th0)).tolist(),
+                         theta=out["theta"][k], residual=r, jacobian=j,
+                         cost=float(out["cost"][k]), steps=int(out["steps"][k]),
+                         evaluations=int(out["steps"][k]),
+                         optimizer_converged=bool(step < options.step_tol),
+                         stop=out["stop"][k]))
+    best = min(runs, key=lambda d: d["cost"] if np.isfinite(d["cost"]) else np.inf)
     for run in runs:
         run["same_minimum"] = bool(abs(run["cost"] - best["cost"])
                                    <= SAME_COST_RTOL * max(1.0, best["cost"]))
-        run["theta"] = run.pop("result").theta.tolist()
-    step = remaining_step(lm.residual, lm.jacobian, rows, no_information_std(problem))
+    theta, r, j = best["theta"], best["residual"], best["jacobian"]
+    for run in runs:
+        run["theta"] = np.asarray(run["theta"]).tolist()
+        del run["residual"], run["jacobian"]
+    step = remaining_step(r, j, rows, max_std)
     agree = sum(run["same_minimum"] for run in runs)
     # The evidence at the returned point decides, not the optimiser's own stopping rule.
     converged = bool(step < STEP_TOL and (len(runs) == 1 or agree >= 2))
-    return FitResult(problem, lm.theta, np.asarray(problem.values(lm.theta)), float(lm.cost),
-                     lm.residual, lm.jacobian, runs, converged,
+    return FitResult(problem, np.asarray(theta), np.asarray(problem.values(np.asarray(theta))),
+                     float(best["cost"]), r, j, runs, converged,
                      bool(best["optimizer_converged"]), step, best["steps"],
                      time.perf_counter() - t0)

@@ -1,82 +1,170 @@
-"""Arrange the records of a `Problem` into per-speed arrays and map records to residual rows.
+"""The fit's data as traced arrays of a fixed layout, and where each record's rows lie.
 
-Within a speed the data residual holds, in order, the linear and first-order sine records
-(R, H), the nonlinear sine records (S, H) and the lines of all FRF records (L,), each as all
-real parts then all imaginary parts. `layout[i] = (group, kind, rows, selector)` gives
-record i's group index, kind (0 linear or first-order, 1 nonlinear, 2 FRF), its residual
-rows and how to pick its model values from the group's prediction.
+Everything that varies between fits of the same kind of test (measured harmonics and lines,
+their noise weights, which model each sine record uses, the prior parameter set, prior means
+and widths, the spindle speeds) is an array in `FitData`; only the *structure* (which
+parameter keys are fitted, for which speed, in log or offset form) is static (`Structure`).
+Record counts are padded to size classes (`size_class`): a padded sine record or FRF line
+has an infinite standard error, so its residual and Jacobian rows are zero. So one compiled
+program serves every start, held-parameter variant, model-choice iteration and replicate of
+a layout (see `_model.py` and `_solve.py`).
+
+Within a speed group the data residual holds the sine records' harmonics (R, H) as all real
+parts then all imaginary parts, then the FRF lines (L,) likewise; the prior's p entries
+follow the last group (zero where a parameter has no prior). `layout[i] = (group, kind,
+rows, selector)`: record i's group, kind (0 sine, 2 FRF), residual rows and position in its
+group's prediction.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+# A padded sine record sits at this (harmless) frequency with zero force.
+_PAD_FREQUENCY_HZ = 100.0
 
-def _sine_arrays(problem, idx, h):
-    if not idx:
-        return [np.zeros((0, h)), np.zeros((0, h), complex), np.zeros((0, h), complex),
-                np.zeros((0, h, 2))]
+
+def size_class(n: int) -> int:
+    """Padded count: 0, or the next power of two (records, orbit slots and FRF lines)."""
+    return 0 if n <= 0 else 1 << (int(n) - 1).bit_length()
+
+
+@dataclasses.dataclass(frozen=True)
+class Structure:
+    """The static part of a fit problem (hashable: the compiled programs' cache key)."""
+
+    keys: tuple  # vocabulary key of each fitted parameter
+    groups: tuple  # speed-group index of each parameter (-1: shared by every speed)
+    log: tuple  # bool per parameter: theta = ln(value / prior), else value - prior [um]
+    n_groups: int
+
+
+class GroupData(eqx.Module):
+    """Records at one spindle speed (traced)."""
+
+    sine_freq: jax.Array  # (R, H) harmonic frequencies [Hz]
+    sine_force: jax.Array  # (R, H) complex force harmonics [N]
+    sine_acc: jax.Array  # (R, H) complex measured acceleration harmonics [m/s^2]
+    sine_scale: jax.Array  # (R, H, 2) std of (Re, Im); inf: not used (padding, filter band)
+    sine_first: jax.Array  # (R,) bool: first-order harmonic-balance correction added
+    sine_orbit: jax.Array  # (R,) bool: periodic-orbit (shooting) model
+    orbit_index: jax.Array  # (S,) int: the records whose orbit is computed (padded)
+    frf_freq: jax.Array  # (L,) FRF lines [Hz]
+    frf_acc: jax.Array  # (L,) complex accelerance [m/s^2 per N]
+    frf_scale: jax.Array  # (L, 2)
+
+
+class FitData(eqx.Module):
+    """All traced inputs of the residual except theta."""
+
+    base: object  # BallScrewParams: the prior parameter set (fitted stiffness keys explicit)
+    speeds: jax.Array  # (G,) [r/min]
+    prior_values: jax.Array  # (p,) file units
+    inv_sigma: jax.Array  # (p,) 1 / prior std of theta; 0: no prior
+    info_floor: jax.Array  # () singular values below this carry no information (ML: 1)
+    groups: tuple
+
+
+def _sine_arrays(problem, idx, h, rows):
+    freq = np.full((rows, h), _PAD_FREQUENCY_HZ) * np.arange(1, h + 1)
+    force = np.zeros((rows, h), complex)
+    acc = np.zeros((rows, h), complex)
+    std = np.full((rows, h, 2), np.inf)
     data = problem.data
-    freq = np.stack([data[i].frequency_hz * data[i].harmonics for i in idx])
-    force = np.stack([data[i].force for i in idx])
-    acc = np.stack([data[i].acceleration for i in idx])
-    # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the model's
-    # transfer where the models were chosen (a weight only; not differentiated).
-    g = np.stack([problem.transfer[i] for i in idx])
-    var = (np.stack([data[i].acceleration_var for i in idx])
-           + np.abs(g)[..., None] ** 2 * np.stack([data[i].force_var for i in idx]))
-    # Harmonics near the anti-alias filter are left out (their phase is the filter's, not
-    # the structure's): infinite std -> zero residual.
-    std = np.where((freq <= problem.max_harmonic_hz)[..., None], np.sqrt(var), np.inf)
-    return [freq, force, acc, std]
+    for j, i in enumerate(idx):
+        d = data[i]
+        freq[j] = d.frequency_hz * d.harmonics
+        force[j] = d.force
+        acc[j] = d.acceleration
+        # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the model's
+        # transfer where the models were chosen (a weight only; not differentiated).
+        var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
+        # Harmonics near the anti-alias filter are left out (their phase is the filter's,
+        # not the structure's): infinite std -> zero residual.
+        std[j] = np.where((freq[j] <= problem.max_harmonic_hz)[:, None], np.sqrt(var), np.inf)
+    return freq, force, acc, std
 
 
-def _frf_arrays(problem, idx):
-    if not idx:
-        return [np.zeros(0), np.zeros(0, complex), np.zeros((0, 2))]
-    data = problem.data
-    freq = np.concatenate([np.asarray(data[i].frequency_hz, float) for i in idx])
-    acc = np.concatenate([np.asarray(data[i].accelerance, complex) for i in idx])
-    # Lines the linear FRF cannot model within the model-error bound: infinite std.
-    std = np.sqrt(np.concatenate([
-        np.where(np.asarray(problem.frf_left_out.get(i, False))[..., None], np.inf,
-                 np.asarray(data[i].variance, float)) for i in idx]))
-    return [freq, acc, std]
+def _frf_arrays(problem, idx, lines):
+    freq = np.full(lines, _PAD_FREQUENCY_HZ)
+    acc = np.zeros(lines, complex)
+    std = np.full((lines, 2), np.inf)
+    pos = 0
+    for i in idx:
+        d = problem.data[i]
+        n = np.asarray(d.frequency_hz).size
+        freq[pos:pos + n] = np.asarray(d.frequency_hz, float)
+        acc[pos:pos + n] = np.asarray(d.accelerance, complex)
+        # Lines the linear FRF cannot model within the model-error bound: infinite std.
+        std[pos:pos + n] = np.sqrt(np.where(
+            np.asarray(problem.frf_left_out.get(i, False))[..., None], np.inf,
+            np.asarray(d.variance, float)))
+        pos += n
+    return freq, acc, std
 
 
-def build_groups(problem):
-    from ._problem import _Group, is_frf
-
+def build_data(problem, is_frf):
+    """(`FitData`, `Structure`, layout) of a `Problem` (see the module docstring)."""
     data, models = problem.data, problem.models
     sines = [d for d in data if not is_frf(d)]
     h = sines[0].harmonics.size if sines else 1
     groups, layout, pos = [], {}, 0
     for gi, s in enumerate(problem.speeds):
-        members = [[i for i, d in enumerate(data) if d.speed_rpm == s and models[i] in kinds]
-                   for kinds in (("linear", "first-order"), ("nonlinear",), ("frf",))]
-        first = np.asarray([models[i] == "first-order" for i in members[0]], bool)
-        lf, lF, lA, lS = _sine_arrays(problem, members[0], h)
-        nf, nF, nA, nS = _sine_arrays(problem, members[1], h)
-        ff, fA, fS = _frf_arrays(problem, members[2])
-        groups.append(_Group(jnp.asarray(lf), jnp.asarray(lF), jnp.asarray(lA), jnp.asarray(lS),
-                             jnp.asarray(first),
-                             jnp.asarray(nf[:, 0] if nf.size else np.zeros(0)),
-                             jnp.asarray(nF), jnp.asarray(nA), jnp.asarray(nS),
-                             jnp.asarray(ff), jnp.asarray(fA), jnp.asarray(fS)))
-        for kind in (0, 1):
-            count = len(members[kind])
-            for j, i in enumerate(members[kind]):
-                rows = np.concatenate([pos + j * h + np.arange(h),
-                                       pos + count * h + j * h + np.arange(h)])
-                layout[i] = (gi, kind, rows, j)
-            pos += 2 * count * h
-        total = ff.size
+        sine_idx = [i for i, d in enumerate(data) if d.speed_rpm == s and not is_frf(d)]
+        frf_idx = [i for i, d in enumerate(data) if d.speed_rpm == s and is_frf(d)]
+        rows = size_class(len(sine_idx))
+        orbit = [j for j, i in enumerate(sine_idx) if models[i] == "nonlinear"]
+        slots = size_class(len(orbit))
+        orbit_index = np.asarray(orbit + [orbit[0] if orbit else 0] * (slots - len(orbit)),
+                                 int)
+        n_lines = int(sum(np.asarray(data[i].frequency_hz).size for i in frf_idx))
+        lines = size_class(n_lines)
+        sf, sF, sA, sS = _sine_arrays(problem, sine_idx, h, rows)
+        first = np.zeros(rows, bool)
+        nl = np.zeros(rows, bool)
+        for j, i in enumerate(sine_idx):
+            first[j] = models[i] == "first-order"
+            nl[j] = models[i] == "nonlinear"
+        ff, fA, fS = _frf_arrays(problem, frf_idx, lines)
+        groups.append(GroupData(jnp.asarray(sf), jnp.asarray(sF), jnp.asarray(sA),
+                                jnp.asarray(sS), jnp.asarray(first), jnp.asarray(nl),
+                                jnp.asarray(orbit_index), jnp.asarray(ff), jnp.asarray(fA),
+                                jnp.asarray(fS)))
+        for j, i in enumerate(sine_idx):
+            layout[i] = (gi, 0, np.concatenate([pos + j * h + np.arange(h),
+                                                pos + (rows + j) * h + np.arange(h)]), j)
+        pos += 2 * rows * h
         start = 0
-        for i in members[2]:
+        for i in frf_idx:
             n = np.asarray(data[i].frequency_hz).size
-            rows = np.concatenate([pos + start + np.arange(n), pos + total + start + np.arange(n)])
-            layout[i] = (gi, 2, rows, slice(start, start + n))
+            layout[i] = (gi, 2, np.concatenate([pos + start + np.arange(n),
+                                                pos + lines + start + np.arange(n)]),
+                         slice(start, start + n))
             start += n
-        pos += 2 * total
-    return groups, layout
+        pos += 2 * lines
+    sigma = problem.prior_sigma
+    fit_data = FitData(
+        problem.base, jnp.asarray(problem.speeds, float), jnp.asarray(problem.prior_values),
+        jnp.asarray(np.zeros(problem.n_params) if sigma is None else 1.0 / np.asarray(sigma)),
+        jnp.asarray(problem.info_floor, float), tuple(groups))
+    structure = Structure(tuple(problem.keys),
+                          tuple(-1 if s is None else problem.speeds.index(s)
+                                for s in problem.param_speeds),
+                          tuple(bool(x) for x in problem.is_log), len(problem.speeds))
+    return fit_data, structure, layout
+
+
+def used_rows(fit_data: FitData) -> np.ndarray:
+    """Data-residual rows that carry data (False: padding, harmonics left out)."""
+    parts = []
+    for g in fit_data.groups:
+        for scale in (g.sine_scale, g.frf_scale):
+            finite = np.isfinite(np.asarray(scale))
+            parts.append(finite[..., 0].reshape(-1))
+            parts.append(finite[..., 1].reshape(-1))
+    return np.concatenate(parts) if parts else np.zeros(0, bool)

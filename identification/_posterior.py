@@ -31,9 +31,12 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from ._model import residual
 
 RHAT_MAX = 1.01
 ESS_PER_CHAIN_MIN = 100
@@ -76,7 +79,6 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
     `result`: a `FitResult`; `unc`: its `Uncertainty` (start jitter, noise scale).
     Raises ValueError where the sampler cannot apply (no priors, periodic-orbit records).
     """
-    import blackjax
     from blackjax.diagnostics import effective_sample_size, potential_scale_reduction
 
     pb = result.problem
@@ -91,7 +93,6 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
         raise ValueError(f"use at least 2 chains, {MIN_DRAWS} warm-up steps and "
                          f"{MIN_DRAWS} draws per chain")
     t0 = time.perf_counter()
-    n_data = pb.used_mask().size
     scale = float(unc.noise.get("scaled_by", 1.0))
 
     # Whitened coordinates: theta = theta_hat + L w with L L^T the linearised covariance, so
@@ -102,34 +103,11 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
                                           * np.max(np.diag(cov))))
     centre = jnp.asarray(result.theta)
 
-    def logdensity(w):
-        r = pb.residual(centre + chol @ w)
-        return -0.5 * (jnp.sum(r[:n_data] ** 2) / scale + jnp.sum(r[n_data:] ** 2))
-
     rng = np.random.default_rng(seed)
     starts = rng.normal(size=(chains, cov.shape[0]))
-
-    @jax.jit
-    def run(keys, starts):
-        def one(key, start):
-            k_warm, k_draw = jax.random.split(key)
-            adapt = blackjax.window_adaptation(blackjax.nuts, logdensity,
-                                               initial_step_size=0.5,
-                                               target_acceptance_rate=0.95)
-            (state, params), _ = adapt.run(k_warm, start, num_steps=warmup)
-            kernel = blackjax.nuts(logdensity, **params).step
-
-            def step(state, key):
-                state, info = kernel(key, state)
-                return state, (state.position, info.is_divergent)
-
-            _, (pos, div) = jax.lax.scan(step, state, jax.random.split(k_draw, samples))
-            return pos, div
-
-        return jax.vmap(one)(keys, starts)
-
     keys = jax.random.split(jax.random.PRNGKey(seed), chains)
-    pos, div = run(keys, jnp.asarray(starts))
+    pos, div = _run(keys, jnp.asarray(starts), centre, chol, jnp.asarray(scale), pb.fit_data,
+                    pb.structure, warmup, samples)
     theta = np.asarray(result.theta)[None, None, :] + np.asarray(pos) @ np.asarray(chol).T
     rhat = np.asarray(potential_scale_reduction(jnp.asarray(theta), chain_axis=0,
                                                 sample_axis=1))
@@ -142,6 +120,35 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
     return Posterior(pb.names, pb.units, values, flat.mean(0), flat.std(0, ddof=1),
                      np.percentile(flat, [2.5, 97.5], axis=0).T, rhat, ess, divergences,
                      converged, time.perf_counter() - t0)
+
+
+@eqx.filter_jit
+def _run(keys, starts, centre, chol, scale, fit_data, structure, warmup: int, samples: int):
+    """Every chain's adaptation and draws in one program; the fit's data, the centre, the
+    whitening and the noise scale are traced, so it compiles once per layout."""
+    import blackjax
+
+    p = centre.shape[0]
+
+    def logdensity(w):
+        r = residual(centre + chol @ w, fit_data, structure)
+        return -0.5 * (jnp.sum(r[:-p] ** 2) / scale + jnp.sum(r[-p:] ** 2))
+
+    def one(key, start):
+        k_warm, k_draw = jax.random.split(key)
+        adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, initial_step_size=0.5,
+                                           target_acceptance_rate=0.95)
+        (state, params), _ = adapt.run(k_warm, start, num_steps=warmup)
+        kernel = blackjax.nuts(logdensity, **params).step
+
+        def step(state, key):
+            state, info = kernel(key, state)
+            return state, (state.position, info.is_divergent)
+
+        _, (pos, div) = jax.lax.scan(step, state, jax.random.split(k_draw, samples))
+        return pos, div
+
+    return jax.vmap(one)(keys, starts)
 
 
 def posterior_text(post: dict, report: dict) -> str:

@@ -31,8 +31,10 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
+from . import _model
 from ._choice import MODEL_ERROR, is_frf, keep_marginal, same_choice, screen
-from ._measurement import linear_acceleration, linearisation_error, nonlinear_acceleration
+from ._groups import build_data, used_rows
+from ._lm import NO_INFORMATION_STD
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,8 +77,6 @@ DEFAULT_FIT = ("nut_k", "bearing_k", "screw_k", "c_b", "c_s", "c_n", "expansion"
 PRELOAD_FIT = ("nut_preload", "bearing_preload", "c_b", "c_s", "c_n")
 # Harmonics above this fraction of the sample rate are not used (anti-alias filter phase).
 MAX_HARMONIC_FRACTION = 0.25
-# A trial point whose model is not finite (a joint without preload) costs this per entry.
-BAD_RESIDUAL = 1e6
 
 
 def parse_fit(text: str | None) -> tuple[str, ...]:
@@ -119,23 +119,6 @@ def parse_priors(text: str | None, names) -> dict:
             raise ValueError(f"--prior: sigma of '{name}' must be a positive number, got {value}")
         sig[name] = v
     return sig
-
-
-class _Group(eqx.Module):
-    """Arrays of the records at one speed (jnp, traced data of the residual)."""
-
-    lin_freq: jax.Array  # (R, H) harmonic frequencies
-    lin_force: jax.Array  # (R, H) complex
-    lin_acc: jax.Array  # (R, H) complex measured
-    lin_scale: jax.Array  # (R, H, 2) std of (re, im)
-    lin_first: jax.Array  # (R,) bool: first-order (weakly nonlinear) correction added
-    nl_freq: jax.Array  # (S,)
-    nl_force: jax.Array  # (S, H)
-    nl_acc: jax.Array
-    nl_scale: jax.Array
-    frf_freq: jax.Array  # (L,) lines of every FRF record at this speed
-    frf_acc: jax.Array  # (L,) accelerance [m/s^2 per N]
-    frf_scale: jax.Array  # (L, 2)
 
 
 _build = eqx.filter_jit(bsfs_jax.build_system)
@@ -232,10 +215,8 @@ class Problem:
             self.frf_left_out = dict(frf_left_out)
         if previous is not None:
             self.models, self.frf_left_out = keep_marginal(self, previous, model_error)
-        self.groups, self.layout = self._build_groups()
-        both = lambda th, g: (self.residual(th, g),) * 2
-        self._rj_jit = eqx.filter_jit(jax.jacfwd(both, has_aux=True))
-        self._predict_jit = eqx.filter_jit(self.predict)
+        self.info_floor = 1.0 / NO_INFORMATION_STD if self.prior_sigma is None else 0.0
+        self.fit_data, self.structure, self.layout = build_data(self, is_frf)
 
     def linearised(self) -> Problem:
         """The same problem with every sine record on the linearised model (a cheap start
@@ -262,11 +243,19 @@ class Problem:
         """Whether `other` uses the same model per record and leaves out the same lines."""
         return same_choice(self, other)
 
-    def rj(self, theta, groups=None):
-        """(residual, Jacobian) as numpy arrays: one compiled function for every use."""
-        j, r = self._rj_jit(jnp.asarray(theta, float), self.groups if groups is None
-                            else groups)
-        return np.asarray(r), np.asarray(j)
+    def rj(self, theta, fit_data=None):
+        """(residual, Jacobian) as numpy arrays (`residual`'s rows): one compiled program per
+        structure and layout, shared by every problem of that layout."""
+        r, j = _model.residual_and_jacobian(jnp.asarray(theta, float),
+                                            self.fit_data if fit_data is None else fit_data,
+                                            self.structure)
+        keep = self._residual_rows(r.shape[0])
+        return np.asarray(r)[keep], np.asarray(j)[keep]
+
+    def _residual_rows(self, n):
+        """Rows of the model's residual that `residual` returns (no prior rows without
+        priors)."""
+        return slice(None) if self.prior_sigma is not None else slice(0, n - self.n_params)
 
     def _expand_parameters(self):
         names, keys, priors, speeds = [], [], [], []
@@ -328,68 +317,31 @@ class Problem:
                 p = p.replace(key, values[i])
         return p
 
-    # -- data ------------------------------------------------------------------------------
-    def _build_groups(self):
-        from ._groups import build_groups
-
-        return build_groups(self)
-
     # -- model and residual ----------------------------------------------------------------
-    def predict(self, theta, groups=None):
-        """Model accelerations per group: list of (linear (R,H), nonlinear (S,H), FRF (L,))."""
-        groups = self.groups if groups is None else groups
-        out = []
-        for s, g in zip(self.speeds, groups):
-            system = bsfs_jax.build_system(self.params_at(theta, s))
-            lin = (linear_acceleration(system, g.lin_freq, g.lin_force)
-                   if g.lin_freq.shape[0] else jnp.zeros((0, g.lin_freq.shape[1]), complex))
-            if "first-order" in self.models and g.lin_freq.shape[0]:
-                corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(
-                    system, g.lin_freq[:, 0], g.lin_force)
-                lin = lin + jnp.where(g.lin_first[:, None], corr, 0.0)
-            if g.nl_freq.shape[0]:
-                fn = lambda f, fc: nonlinear_acceleration(system, f, fc)
-                nl, ok = jax.vmap(fn)(g.nl_freq, g.nl_force)
-                nl = jnp.where(ok[:, None], nl, jnp.inf)
-            else:
-                nl = jnp.zeros((0, g.nl_force.shape[1]), complex)
-            frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
-                   if g.frf_freq.shape[0] else jnp.zeros(0, complex))
-            out.append((lin, nl, frf))
-        return out
+    def predict(self, theta, fit_data=None):
+        """Model per speed group: [(sine harmonics (R, H), FRF accelerance (L,))]."""
+        return _model.predict(theta, self.fit_data if fit_data is None else fit_data,
+                              self.structure)
 
-    def data_residual(self, theta, groups=None):
+    def data_residual(self, theta, fit_data=None):
         """Noise-weighted data residual (dimensionless; about N(0, 1) at the truth)."""
-        groups = self.groups if groups is None else groups
-        parts = []
-        for preds, g in zip(self.predict(theta, groups), groups):
-            pairs = ((g.lin_acc, g.lin_scale), (g.nl_acc, g.nl_scale), (g.frf_acc, g.frf_scale))
-            for model, (meas, scale) in zip(preds, pairs):
-                d = meas - model
-                d = jnp.where(jnp.isfinite(d), d, BAD_RESIDUAL)
-                parts.append((jnp.real(d) / scale[..., 0]).reshape(-1))
-                parts.append((jnp.imag(d) / scale[..., 1]).reshape(-1))
-        return jnp.concatenate(parts)
+        r = _model.residual(theta, self.fit_data if fit_data is None else fit_data,
+                            self.structure)
+        return r[:r.shape[0] - self.n_params]
 
-    def residual(self, theta, groups=None):
+    def residual(self, theta, fit_data=None):
         """Data residual followed by the prior's entries theta / sigma (when priors are on)."""
-        r = self.data_residual(theta, groups)
-        if self.prior_sigma is None:
-            return r
-        return jnp.concatenate([r, theta / jnp.asarray(self.prior_sigma)])
+        r = _model.residual(theta, self.fit_data if fit_data is None else fit_data,
+                            self.structure)
+        return r[self._residual_rows(r.shape[0])]
 
     @property
     def n_data(self) -> int:
         return int(self.used_mask().size)
 
     def used_mask(self):
-        """Data-residual entries that carry data (False: harmonics left out)."""
-        parts = []
-        for g in self.groups:
-            for scale in (g.lin_scale, g.nl_scale, g.frf_scale):
-                parts.append(np.isfinite(np.asarray(scale[..., 0])).reshape(-1))
-                parts.append(np.isfinite(np.asarray(scale[..., 1])).reshape(-1))
-        return np.concatenate(parts)
+        """Data-residual entries that carry data (False: padding, harmonics left out)."""
+        return used_rows(self.fit_data)
 
     def record_slices(self):
         """For each record (in data order) the indices of its entries in the residual."""
@@ -397,10 +349,9 @@ class Problem:
 
     def model_harmonics(self, theta):
         """Model accelerations per record in data order (numpy): harmonics or FRF lines."""
-        preds = self._predict_jit(jnp.asarray(theta, float))
+        preds = _model.predictions(jnp.asarray(theta, float), self.fit_data, self.structure)
         out = []
         for i in range(len(self.data)):
             gi, kind, _, row = self.layout[i]
-            arr = np.asarray(preds[gi][kind])
-            out.append(arr[row])
+            out.append(np.asarray(preds[gi][0 if kind == 0 else 1])[row])
         return out

@@ -9,10 +9,11 @@ the conditional optimum: where the valley curves, the path's cost rises faster t
 profile's.) So a doubtful side is checked with the profile itself at t = 1.96 (below), and
 only where that too is off by more than `LINEAR_TOL` is the interval's end searched.
 
-Profile. For a doubtful parameter the others are re-optimised with theta_i held (the same
-host-side Levenberg-Marquardt as the fit, on the same compiled residual and Jacobian),
-and the end of the 95 % interval is where the profile's 2 x cost exceeds the optimum's by
-3.84 (chi-square, 1 degree of freedom), found by a secant search in t. A profile that
+Profile. For a doubtful parameter the others are re-optimised with theta_i held (the fit's
+own compiled optimistix solve, the held parameter masked: `_solve.py`), and the end of the
+95 % interval is where the profile's 2 x cost exceeds the optimum's by 3.84 (chi-square, 1
+degree of freedom), found by a secant search in t. The searches of every doubtful side of
+every parameter advance together: each round's profile points are one vmapped solve. A profile that
 stays below 3.84 out to `MAX_T` standard errors leaves that side open: the parameter is
 then not determined.
 """
@@ -21,10 +22,12 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 
-from ._fit import full_used_mask, no_information_std
-from ._lm import levenberg_marquardt
+from ._groups import size_class
+from ._model import residuals_batch
+from ._solve import SolveOptions, solve
 from ._uncertainty import Z95, Uncertainty
 
 LINEAR_TOL = 0.1
@@ -32,19 +35,19 @@ LEVEL = Z95**2  # 3.84
 MAX_T = 8.0
 
 
-def held_cost(problem, theta_start, i, value, rows=None):
-    """2 x cost with theta_i held at `value` and the others re-optimised (host LM)."""
-    start = np.asarray(theta_start, float).copy()
-    start[i] = value
-    held = np.arange(start.size) == i
-    out = levenberg_marquardt(problem.rj, start, held=held, max_steps=60, tol=1e-3, rows=rows,
-                              max_std=no_information_std(problem))
-    return out.theta, 2.0 * out.cost
-
-
-def _two_cost(problem, theta):
-    r, _ = problem.rj(theta)
-    return float(r @ r) if np.all(np.isfinite(r)) else float("inf")
+def held_costs(problem, starts, held_index, held_values):
+    """2 x cost with theta_i held at a value and the others re-optimised, for many (start,
+    i, value) requests at once: one batched optimistix solve (`_solve.py`) of the fit's own
+    compiled program. Returns (optima (n, p), 2 x costs (n,), inf where not finite)."""
+    starts = np.array(starts, float, ndmin=2)
+    lanes = np.arange(starts.shape[0])
+    starts[lanes, held_index] = held_values
+    free = np.ones(starts.shape, bool)
+    free[lanes, held_index] = False
+    out = solve(starts, free, problem.fit_data, problem.structure,
+                SolveOptions(max_steps=120, step_tol=1e-3))
+    cost = 2.0 * out["cost"]
+    return out["theta"], np.where(np.isfinite(cost), cost, np.inf)
 
 
 def linearity_check(result, unc: Uncertainty) -> np.ndarray:
@@ -53,33 +56,43 @@ def linearity_check(result, unc: Uncertainty) -> np.ndarray:
     base = 2.0 * result.cost  # the fit's own 2 x cost at the optimum (no re-evaluation)
     out = np.full((pb.n_params, 2), np.nan)
     cov = unc.covariance
+    points, where = [], []
     for i in range(pb.n_params):
         s = np.sqrt(cov[i, i])
         if not (np.isfinite(s) and s > 0 and np.isfinite(unc.scaled_std[i])):
             continue
-        path = cov[:, i] / s
         for k, t in enumerate((-Z95, Z95)):
-            out[i, k] = (_two_cost(pb, result.theta + t * path) - base) / LEVEL
+            points.append(result.theta + t * cov[:, i] / s)
+            where.append((i, k))
+    if points:  # every point of the check in one program (padded to a size class)
+        pad = points + [points[0]] * (size_class(len(points)) - len(points))
+        r = np.asarray(residuals_batch(jnp.asarray(np.stack(pad)), pb.fit_data,
+                                       pb.structure))[:len(points)]
+        two = np.where(np.all(np.isfinite(r), axis=1), np.sum(r**2, axis=1), np.inf)
+        for (i, k), c in zip(where, two):
+            out[i, k] = (c - base) / LEVEL
     return out
 
 
-def _rise_fn(pb, result, unc, i, sign):
-    """t -> rise of the profile's 2 x cost at theta_i = theta_hat_i + sign t sigma_i."""
+def _rises(result, unc, requests):
+    """Rise of the profile's 2 x cost over the optimum's at each (i, sign, t): theta_i held
+    at theta_hat_i + sign t sigma_i, the others started on the conditional path. One
+    batched solve for all requests."""
+    if not requests:
+        return []
     base = 2.0 * result.cost  # the fit's own 2 x cost at the optimum (no re-evaluation)
-    s = unc.scaled_std[i]
+    s = unc.scaled_std
     cov = unc.covariance
-    rows = full_used_mask(pb)
-
-    def rise(t):
-        start = result.theta + sign * t * cov[:, i] / s
-        _, c = held_cost(pb, start, i, result.theta[i] + sign * t * s, rows)
-        return (c - base) if np.isfinite(c) else np.inf
-
-    return rise
+    idx = np.asarray([i for i, _, _ in requests])
+    starts = np.stack([result.theta + sign * t * cov[:, i] / s[i] for i, sign, t in requests])
+    held = np.asarray([result.theta[i] + sign * t * s[i] for i, sign, t in requests])
+    _, costs = held_costs(result.problem, starts, idx, held)
+    return [c - base for c in costs]
 
 
-def _profile_end(rise, r1):
-    """t > 0 where the profile's rise reaches 3.84 (r1 = rise at 1.96), or inf if never."""
+def _end_search(r1):
+    """Generator of the t > 0 where the profile's rise reaches 3.84 (r1 = rise at 1.96):
+    yields the next t to evaluate, is sent its rise, returns t (inf: never, by MAX_T)."""
     t0, r0 = 0.0, 0.0
     t1 = Z95
     for _ in range(12):
@@ -95,14 +108,37 @@ def _profile_end(rise, r1):
             a, b = np.sqrt(max(r0, 0.0)), np.sqrt(r1)
             t_new = t0 + (t1 - t0) * (np.sqrt(LEVEL) - a) / max(b - a, 1e-12)
             t_new = min(max(t_new, t0 + 0.05 * (t1 - t0)), t1 - 0.05 * (t1 - t0))
-            r_new = rise(t_new)
+            r_new = yield t_new
             if r_new < LEVEL:
                 t0, r0 = t_new, r_new
                 continue
             t1, r1 = t_new, r_new
             continue
-        r1 = rise(t1)
+        r1 = yield t1
     return t1
+
+
+def _profile_ends(result, unc, first):
+    """{(i, k): t_end} for every side in `first` ({(i, k): rise at 1.96}); the searches of
+    all sides advance together, each round one batched solve."""
+    ends, live = {}, {}
+    for key, r1 in first.items():
+        gen = _end_search(r1)
+        try:
+            live[key] = (gen, next(gen))
+        except StopIteration as stop:
+            ends[key] = stop.value
+    while live:
+        keys = list(live)
+        rises = _rises(result, unc, [(i, (-1.0, 1.0)[k], live[(i, k)][1]) for i, k in keys])
+        for key, rise in zip(keys, rises):
+            gen = live[key][0]
+            try:
+                live[key] = (gen, gen.send(rise))
+            except StopIteration as stop:
+                ends[key] = stop.value
+                del live[key]
+    return ends
 
 
 def profile_intervals(result, unc: Uncertainty, *, force: bool = False) -> tuple:
@@ -122,22 +158,21 @@ def profile_intervals(result, unc: Uncertainty, *, force: bool = False) -> tuple
     method = list(unc.ci_method)
     determined = unc.determined.copy()
     log = pb.is_log
-    for i in np.nonzero(finite)[0]:
-        for k, sign in enumerate((-1.0, 1.0)):
-            if not force and abs(table[i, k] - 1.0) <= LINEAR_TOL:
-                continue
-            rise = _rise_fn(pb, result, unc, i, sign)
-            r1 = rise(Z95)
-            table[i, k] = r1 / LEVEL
-            if not force and abs(table[i, k] - 1.0) <= LINEAR_TOL:
-                continue
-            t = _profile_end(rise, r1)
-            method[i] = "profile"
-            if not np.isfinite(t):
-                ci[i, k] = 0.0 if log[i] and sign < 0 else sign * np.inf
-                determined[i] = False
-                continue
-            th = result.theta[i] + sign * t * unc.scaled_std[i]
-            ci[i, k] = (pb.prior_values[i] * np.exp(th) if log[i]
-                        else pb.prior_values[i] + th)
+    sides = [(i, k) for i in np.nonzero(finite)[0] for k in (0, 1)
+             if force or abs(table[i, k] - 1.0) > LINEAR_TOL]
+    rises = _rises(result, unc, [(i, (-1.0, 1.0)[k], Z95) for i, k in sides])
+    first = {}
+    for (i, k), r1 in zip(sides, rises):
+        table[i, k] = r1 / LEVEL
+        if force or abs(table[i, k] - 1.0) > LINEAR_TOL:
+            first[(i, k)] = r1
+    for (i, k), t in sorted(_profile_ends(result, unc, first).items()):
+        sign = (-1.0, 1.0)[k]
+        method[i] = "profile"
+        if not np.isfinite(t):
+            ci[i, k] = 0.0 if log[i] and sign < 0 else sign * np.inf
+            determined[i] = False
+            continue
+        th = result.theta[i] + sign * t * unc.scaled_std[i]
+        ci[i, k] = (pb.prior_values[i] * np.exp(th) if log[i] else pb.prior_values[i] + th)
     return dataclasses.replace(unc, ci95=ci, ci_method=method, determined=determined), table

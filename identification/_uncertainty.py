@@ -32,8 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -42,6 +40,7 @@ import bsfs_jax
 from ._fit import FitResult
 from ._lm import NO_INFORMATION_STD, informative
 from ._measurement import receptance
+from ._model import compliance_and_gradient
 from ._problem import is_frf
 
 IDENTIFIABLE_STD = 0.1  # without priors: determined if std < 0.1 (10 % / 0.1 um)
@@ -96,16 +95,6 @@ def static_compliance(problem, theta, speed):
     """Static compliance at the nut x_n / P [m/N] for the fitted parameters at `speed`."""
     system = bsfs_jax.build_system(problem.params_at(theta, speed))
     return jnp.real(receptance(system, jnp.zeros(1))[0, 2])
-
-
-class _Box(eqx.Module):
-    problem: object = eqx.field(static=True)
-    speed: float = eqx.field(static=True)
-
-
-@eqx.filter_jit
-def _compliance_jit(box, theta):
-    return jax.value_and_grad(lambda th: static_compliance(box.problem, th, box.speed))(theta)
 
 
 def _record_dof(problem) -> list[str]:
@@ -221,10 +210,9 @@ def uncertainty(result: FitResult) -> Uncertainty:
     with np.errstate(divide="ignore"):
         direction_std = np.sqrt(noise["scaled_by"]) / np.where(sv > 0, sv, 0.0)
     comp = {}
-    theta = jnp.asarray(result.theta)
-    for s in pb.speeds:
-        c, g = _compliance_jit(_Box(pb, float(s)), theta)
-        g = np.asarray(g)
+    cs, gs = compliance_and_gradient(jnp.asarray(result.theta), pb.fit_data, pb.structure)
+    for k, s in enumerate(pb.speeds):
+        c, g = float(cs[k]), np.asarray(gs[k])
         var = float(g @ cov @ g) if noise["estimable"] else float("inf")
         sd = float(np.sqrt(max(var, 0.0)))
         comp[f"{s:g}"] = dict(compliance_nm_per_n=float(c) * 1e9, std_nm_per_n=sd * 1e9,

@@ -228,7 +228,7 @@ def test_paper_test_converges_and_says_only_the_compliance_is_determined(cli_run
 
 def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_problem):
     """Re-solve the held problem at a reported profile end: 2 x cost rose by 3.84."""
-    from identification._profile import held_cost
+    from identification._profile import held_costs
 
     out, report = cli_run
     row = report["parameters"]["screw_k"]
@@ -236,8 +236,9 @@ def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_pr
     pb = paper_problem
     res = idn.fit(pb, starts=1)
     i = pb.names.index("screw_k")
-    for end in row["ci95"]:
-        _, c = held_cost(pb, res.theta, i, float(np.log(end / pb.prior_values[i])))
+    ends = [float(np.log(end / pb.prior_values[i])) for end in row["ci95"]]
+    _, costs = held_costs(pb, [res.theta, res.theta], [i, i], ends)
+    for c in costs:
         assert c - 2 * res.cost == pytest.approx(3.84, abs=0.05)
 
 
@@ -390,22 +391,23 @@ def test_monte_carlo_sigma_matches_scatter(truth):
     # scatter), not the model.
     pb = idn.Problem(data, truth, fit, model="linear", priors=None)
     clean = pb.model_harmonics(np.zeros(pb.n_params))
-    groups0 = pb.groups
+    data0 = pb.fit_data
+    g = data0.groups[0]
     rng = np.random.default_rng(7)
     thetas, stds = [], []
     for _ in range(16):
-        g = groups0[0]
-        acc = np.stack(clean)
-        scale = np.where(np.isfinite(np.asarray(g.lin_scale)), np.asarray(g.lin_scale), 0.0)
+        acc = np.zeros(g.sine_acc.shape, complex)
+        acc[:len(clean)] = np.stack(clean)  # the records, then padding
+        scale = np.where(np.isfinite(np.asarray(g.sine_scale)), np.asarray(g.sine_scale), 0.0)
         noisy = acc + scale[..., 0] * rng.normal(size=acc.shape) \
             + 1j * scale[..., 1] * rng.normal(size=acc.shape)
         import equinox as eqx
 
-        pb.groups = [eqx.tree_at(lambda x: x.lin_acc, g, jnp.asarray(noisy))]
+        pb.fit_data = eqx.tree_at(lambda d: d.groups[0].sine_acc, data0, jnp.asarray(noisy))
         res = idn.fit(pb, starts=1)
         thetas.append(res.theta)
         stds.append(idn.uncertainty(res).scaled_std)
-    pb.groups = groups0
+    pb.fit_data = data0
     scatter = np.std(np.asarray(thetas), axis=0, ddof=1)
     sigma = np.mean(np.asarray(stds), axis=0)
     ratio = sigma / scatter

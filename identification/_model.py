@@ -1,0 +1,144 @@
+"""The fit's model and residual as pure functions of (theta, `FitData`, `Structure`).
+
+Nothing here closes over a problem object: the data are traced arguments and the structure
+is the only static one, so the compiled programs (`residual_and_jacobian`, `predictions`
+and the solve in `_solve.py`) are cached per structure and array shapes, not per problem.
+
+Per speed group the sine records' model is the linearised FRF, plus the first-order
+harmonic-balance correction where `sine_first`, replaced by the periodic orbit (shooting)
+where `sine_orbit` (computed only for the `orbit_index` slots); FRF lines use the
+linearised accelerance.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+import bsfs_jax
+
+from ._groups import FitData, Structure
+from ._measurement import linear_acceleration, linearisation_error, nonlinear_acceleration
+
+# A trial point whose model is not finite (a joint without preload) costs this per entry.
+BAD_RESIDUAL = 1e6
+
+
+def values(theta, data: FitData, structure: Structure):
+    """File-unit values: prior * exp(theta) (log-parameters) or prior + theta [um]."""
+    log = jnp.asarray(structure.log, bool)
+    v0 = data.prior_values
+    return jnp.where(log, v0 * jnp.exp(jnp.where(log, theta, 0.0)), v0 + theta)
+
+
+def params_at(theta, data: FitData, structure: Structure, group: int):
+    """Full `BallScrewParams` of speed group `group` (a Python int) at theta."""
+    v = values(theta, data, structure)
+    p = data.base.replace("thermal.speed_rpm", data.speeds[group])
+    for i, (key, g) in enumerate(zip(structure.keys, structure.groups)):
+        if g < 0 or g == group:
+            p = p.replace(key, v[i])
+    return p
+
+
+def _sine_model(system, g):
+    lin = linear_acceleration(system, g.sine_freq, g.sine_force)
+    corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(system, g.sine_freq[:, 0],
+                                                               g.sine_force)
+    lin = lin + jnp.where(g.sine_first[:, None], corr, 0.0)
+    if not g.orbit_index.shape[0]:
+        return lin
+    idx = g.orbit_index
+    fn = lambda f, fc: nonlinear_acceleration(system, f, fc)
+    nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx])
+    nl = jnp.where(ok[:, None], nl, jnp.inf)
+    # Padded slots repeat a real slot (the same value twice) or point at a record that is
+    # not on the orbit model (masked below).
+    full = jnp.zeros_like(lin).at[idx].set(nl)
+    return jnp.where(g.sine_orbit[:, None], full, lin)
+
+
+def predict(theta, data: FitData, structure: Structure):
+    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,))] (complex)."""
+    out = []
+    for gi, g in enumerate(data.groups):
+        system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
+        sine = (_sine_model(system, g) if g.sine_freq.shape[0]
+                else jnp.zeros(g.sine_freq.shape, complex))
+        frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
+               if g.frf_freq.shape[0] else jnp.zeros(0, complex))
+        out.append((sine, frf))
+    return out
+
+
+def residual(theta, data: FitData, structure: Structure):
+    """Noise-weighted data residual (about N(0, 1) at the truth), then the prior's entries
+    theta / sigma (zero where a parameter has no prior)."""
+    parts = []
+    for (sine, frf), g in zip(predict(theta, data, structure), data.groups):
+        for model, meas, scale in ((sine, g.sine_acc, g.sine_scale),
+                                   (frf, g.frf_acc, g.frf_scale)):
+            d = meas - model
+            d = jnp.where(jnp.isfinite(d), d, BAD_RESIDUAL)
+            parts.append((jnp.real(d) / scale[..., 0]).reshape(-1))
+            parts.append((jnp.imag(d) / scale[..., 1]).reshape(-1))
+    parts.append(theta * data.inv_sigma)
+    return jnp.concatenate(parts)
+
+
+def _rj(theta, data, structure):
+    both = lambda th: (residual(th, data, structure),) * 2
+    j, r = jax.jacfwd(both, has_aux=True)(theta)
+    return r, jnp.where(jnp.isfinite(j), j, 0.0)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(2,))
+def residual_with_jacobian(theta, data, structure):
+    """`residual` whose derivative is the forward-mode Jacobian computed once (one pass with
+    p tangents) and applied as a matrix: under `jax.linearize` (optimistix's `jac="fwd"`)
+    the model, with its periodic orbits, then runs once per step, not once per column."""
+    return residual(theta, data, structure)
+
+
+@residual_with_jacobian.defjvp
+def _residual_jvp(structure, primals, tangents):
+    theta, data = primals
+    r, j = _rj(theta, data, structure)
+    return r, j @ tangents[0]  # the data are never differentiated
+
+
+@eqx.filter_jit
+def residual_and_jacobian(theta, data: FitData, structure: Structure):
+    """(residual, Jacobian): one compiled program per structure and layout."""
+    return _rj(theta, data, structure)
+
+
+@eqx.filter_jit
+def residuals_batch(thetas, data: FitData, structure: Structure):
+    """Residuals at several theta (rows of `thetas`) in one program."""
+    return jax.vmap(lambda th: residual(th, data, structure))(thetas)
+
+
+@eqx.filter_jit
+def predictions(theta, data: FitData, structure: Structure):
+    return predict(theta, data, structure)
+
+
+def static_compliance(theta, data: FitData, structure: Structure, group: int):
+    """Static compliance at the nut x_n / P [m/N] of speed group `group`."""
+    from ._measurement import receptance
+
+    system = bsfs_jax.build_system(params_at(theta, data, structure, group))
+    return jnp.real(receptance(system, jnp.zeros(1))[0, 2])
+
+
+@eqx.filter_jit
+def compliance_and_gradient(theta, data: FitData, structure: Structure):
+    """(compliance (G,), its gradient (G, p)) at every speed group."""
+    fns = [functools.partial(static_compliance, data=data, structure=structure, group=g)
+           for g in range(structure.n_groups)]
+    vg = [jax.value_and_grad(f)(theta) for f in fns]
+    return jnp.stack([v for v, _ in vg]), jnp.stack([g for _, g in vg])

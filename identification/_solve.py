@@ -1,0 +1,176 @@
+"""The fit's least-squares solve: optimistix, one compiled program for every lane.
+
+`solve(theta0, free, data, structure)` minimises 0.5 |r(theta)|^2 for a batch of lanes, each
+with its own start, free/held mask and data (`FitData`, see `_groups.py`), as one vmapped
+`optimistix.least_squares` inside one `jit`. Everything that varies between starts,
+held-parameter variants (the profile likelihood), model-choice iterations and replicates is
+a traced array of a fixed layout; the lane count is padded to a size class (1, 4, 8 or 16,
+larger batches are cut into calls of 16). So a layout compiles once per lane class.
+
+Held parameters enter as theta = where(free, z, theta0): their Jacobian columns are zero,
+the damped step leaves them where they are.
+
+The solver is Levenberg-Marquardt with Moré's trust-region update of the damping
+(`optimistix.LevenbergMarquardt`'s descent and `ClassicalTrustRegion`; the alternatives,
+chosen by `SolveOptions.method`, were measured on the bundled problems: see BENCHMARKS.md).
+It stops on the project's own convergence test rather than on small changes of y and f
+(which the ODE solver's noise may never give): the remaining Gauss-Newton step, in units of
+its own standard error, below `step_tol` in every informative direction (`_fit.py`
+explains the test). Its Cauchy test (rtol, atol on theta and the residual) is kept as a
+second way out; the fit's evidence is computed again at the returned point in any case.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+
+from ._groups import Structure
+from ._model import _rj, residual_with_jacobian
+
+LANE_CLASSES = (4,)
+NULL_RTOL = 1e-10
+
+
+def gn_step(r, j, floor):
+    """Largest |(U^T r)_k| over informative singular directions of J (traceable)."""
+    u, s, _ = jnp.linalg.svd(j, full_matrices=False)
+    keep = s > jnp.maximum(s[0] * NULL_RTOL, floor)
+    proj = jnp.abs(u.T @ r)
+    return jnp.where(jnp.any(keep) & jnp.all(jnp.isfinite(r)),
+                     jnp.max(jnp.where(keep, proj, 0.0)), jnp.inf)
+
+
+class StepTestGaussNewton(optx.AbstractGaussNewton):
+    """A Gauss-Newton-family solver (descent and search as given) that also stops once the
+    remaining Gauss-Newton step is below `step_tol` standard errors."""
+
+    rtol: float
+    atol: float
+    norm: Callable
+    descent: optx.AbstractDescent
+    search: optx.AbstractSearch
+    verbose: Callable
+    step_tol: float
+
+    def terminate(self, fn, y, args, options, state, tags):
+        cauchy, result = super().terminate(fn, y, args, options, state, tags)
+        j = state.f_info.jac.as_matrix() * args[3][None, :]  # d r / d theta
+        j = jnp.where(args[1][None, :], j, 0.0)  # the pinning rows carry no information
+        step = gn_step(state.f_info.residual, j, args[2].info_floor)
+        done = (~state.first_step) & (step < self.step_tol)
+        return cauchy | done, result
+
+
+def _quiet(**kwargs):
+    return None
+
+
+def make_solver(method: str, step_tol: float, rcond=None) -> StepTestGaussNewton:
+    """The descent and search of optimistix's solvers, with the step test. `rcond`: the
+    dogleg's Gauss-Newton point leaves out singular directions below rcond x the largest
+    (the directions without information of a maximum-likelihood fit)."""
+    if method == "lm":  # optx.LevenbergMarquardt
+        descent, search = optx.DampedNewtonDescent(), optx.ClassicalTrustRegion()
+    elif method == "indirect-lm":  # optx.IndirectLevenbergMarquardt (Moré's lambda search)
+        descent, search = optx.IndirectDampedNewtonDescent(), optx.ClassicalTrustRegion()
+    elif method == "dogleg":  # optx.Dogleg
+        descent = optx.DoglegDescent(linear_solver=lx.SVD(rcond=rcond))
+        search = optx.ClassicalTrustRegion()
+    elif method == "gauss-newton":  # optx.GaussNewton with a backtracking line search
+        descent, search = optx.NewtonDescent(), optx.BacktrackingArmijo()
+    else:
+        raise ValueError(f"unknown method '{method}' (lm, indirect-lm, dogleg, gauss-newton)")
+    return StepTestGaussNewton(rtol=1e-12, atol=1e-12, norm=optx.max_norm, descent=descent,
+                               search=search, verbose=_quiet, step_tol=step_tol)
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveOptions:
+    method: str = "dogleg"
+    max_steps: int = 200
+    step_tol: float = 1e-3
+    scale: bool = False  # solve in z = d theta, d the Jacobian's column norms at the start
+
+
+def _solve_lane(theta0, free, data, structure, options):
+    def fn(z, args):
+        theta0, free, data, d = args
+        theta = jnp.where(free, z / d, theta0)
+        # Held parameters are pinned by rows (z - d theta0) that are zero at the solve's
+        # start and stay so: the Jacobian keeps full column rank for every descent.
+        pin = jnp.where(free, 0.0, z - d * theta0)
+        return jnp.concatenate([residual_with_jacobian(theta, data, structure), pin]), None
+
+    j0 = jnp.where(free[None, :], _rj(theta0, data, structure)[1], 0.0)
+    if options.scale:
+        norms = jnp.sqrt(jnp.sum(j0**2, axis=0))
+        d = jnp.where(norms > 0, norms, 1.0)
+    else:
+        d = jnp.ones_like(theta0)
+    s0 = jnp.linalg.svd(j0 / d[None, :], compute_uv=False)[0]
+    rcond = jnp.clip(data.info_floor / jnp.maximum(s0, 1e-300), 1e-13, 0.5)
+    solver = make_solver(options.method, options.step_tol, rcond)
+    sol = optx.least_squares(fn, solver, d * theta0, args=(theta0, free, data, d),
+                             has_aux=True, max_steps=options.max_steps, throw=False,
+                             options=dict(jac="fwd"))
+    theta = jnp.where(free, sol.value / d, theta0)
+    f_info = sol.state.f_info
+    n = f_info.residual.shape[0] - theta0.shape[0]  # without the pinning rows
+    r, j = f_info.residual[:n], f_info.jac.as_matrix()[:n] * d[None, :]
+    j = jnp.where(free[None, :], j, 0.0)
+    codes = jnp.stack([sol.result == optx.RESULTS.successful,
+                       sol.result == optx.RESULTS.nonlinear_max_steps_reached])
+    return dict(theta=theta, residual=r, jacobian=j, cost=0.5 * jnp.sum(r**2),
+                steps=sol.stats["num_steps"], codes=codes)
+
+
+@eqx.filter_jit
+def _solve_lanes(theta0, free, data, structure, options):
+    lane = lambda t, f, d: _solve_lane(t, f, d, structure, options)
+    return jax.vmap(lane)(theta0, free, data)
+
+
+def lane_class(n: int) -> int:
+    for c in LANE_CLASSES:
+        if n <= c:
+            return c
+    return LANE_CLASSES[-1]
+
+
+def _stack(items):
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *items)
+
+
+def solve(theta0, free, data, structure: Structure, options: SolveOptions = SolveOptions()):
+    """Solve lanes: `theta0` (n, p), `free` (n, p) bool, `data` one `FitData` for every lane
+    or a list of n (same layout). Returns a dict of numpy arrays with a leading axis n:
+    theta, residual, jacobian, cost, steps, and `stop` (list of n texts)."""
+    theta0 = np.atleast_2d(np.asarray(theta0, float))
+    n = theta0.shape[0]
+    free = np.broadcast_to(np.asarray(free, bool), theta0.shape)
+    datas = list(data) if isinstance(data, list | tuple) else [data] * n
+    if len(datas) != n:
+        raise ValueError(f"{len(datas)} data sets for {n} lanes")
+    out = []
+    size = lane_class(n)
+    for lo in range(0, n, size):
+        idx = list(range(lo, min(lo + size, n)))
+        pad = idx + [idx[0]] * (size - len(idx))
+        res = _solve_lanes(jnp.asarray(theta0[pad]), jnp.asarray(free[pad]),
+                           _stack([datas[i] for i in pad]), structure, options)
+        res = jax.tree_util.tree_map(np.asarray, res)
+        out.append(jax.tree_util.tree_map(lambda x: x[:len(idx)], res))
+    res = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
+    res["stop"] = [("stopped (remaining Gauss-Newton step or Cauchy test)" if ok else
+                    f"optimistix stopped at its step limit ({options.max_steps} steps)"
+                    if at_max else "optimistix reported a failed solve")
+                   for ok, at_max in res.pop("codes")]
+    return res
