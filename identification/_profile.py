@@ -45,7 +45,7 @@ def held_costs(problem, starts, held_index, held_values):
     free = np.ones(starts.shape, bool)
     free[lanes, held_index] = False
     out = solve(starts, free, problem.fit_data, problem.structure,
-                SolveOptions(max_steps=120, step_tol=1e-3))
+                SolveOptions(step_tol=1e-3))
     cost = 2.0 * out["cost"]
     return out["theta"], np.where(np.isfinite(cost), cost, np.inf)
 

@@ -4,8 +4,8 @@
 with its own start, free/held mask and data (`FitData`, see `_groups.py`), as one vmapped
 `optimistix.least_squares` inside one `jit`. Everything that varies between starts,
 held-parameter variants (the profile likelihood), model-choice iterations and replicates is
-a traced array of a fixed layout; the lane count is padded to a size class (1, 4, 8 or 16,
-larger batches are cut into calls of 16). So a layout compiles once per lane class.
+a traced array of a fixed layout, and lanes run in batches of `LANE_CLASSES` (4: a single
+start is padded to 4 lanes, more are cut into calls of 4). So a layout compiles once.
 
 Held parameters enter as theta = where(free, z, theta0): their Jacobian columns are zero,
 the damped step leaves them where they are.
@@ -94,13 +94,15 @@ def make_solver(method: str, step_tol: float, rcond=None) -> StepTestGaussNewton
 
 @dataclasses.dataclass(frozen=True)
 class SolveOptions:
+    """`method` and `max_steps` are static (part of the program); `step_tol` is traced."""
+
     method: str = "dogleg"
     max_steps: int = 200
     step_tol: float = 1e-3
     scale: bool = False  # solve in z = d theta, d the Jacobian's column norms at the start
 
 
-def _solve_lane(theta0, free, data, structure, options):
+def _solve_lane(theta0, free, data, step_tol, structure, options):
     def fn(z, args):
         theta0, free, data, d = args
         theta = jnp.where(free, z / d, theta0)
@@ -117,7 +119,7 @@ def _solve_lane(theta0, free, data, structure, options):
         d = jnp.ones_like(theta0)
     s0 = jnp.linalg.svd(j0 / d[None, :], compute_uv=False)[0]
     rcond = jnp.clip(data.info_floor / jnp.maximum(s0, 1e-300), 1e-13, 0.5)
-    solver = make_solver(options.method, options.step_tol, rcond)
+    solver = make_solver(options.method, step_tol, rcond)
     sol = optx.least_squares(fn, solver, d * theta0, args=(theta0, free, data, d),
                              has_aux=True, max_steps=options.max_steps, throw=False,
                              options=dict(jac="fwd"))
@@ -133,8 +135,8 @@ def _solve_lane(theta0, free, data, structure, options):
 
 
 @eqx.filter_jit
-def _solve_lanes(theta0, free, data, structure, options):
-    lane = lambda t, f, d: _solve_lane(t, f, d, structure, options)
+def _solve_lanes(theta0, free, data, step_tol, structure, options):
+    lane = lambda t, f, d: _solve_lane(t, f, d, step_tol, structure, options)
     return jax.vmap(lane)(theta0, free, data)
 
 
@@ -165,7 +167,8 @@ def solve(theta0, free, data, structure: Structure, options: SolveOptions = Solv
         idx = list(range(lo, min(lo + size, n)))
         pad = idx + [idx[0]] * (size - len(idx))
         res = _solve_lanes(jnp.asarray(theta0[pad]), jnp.asarray(free[pad]),
-                           _stack([datas[i] for i in pad]), structure, options)
+                           _stack([datas[i] for i in pad]), jnp.asarray(options.step_tol),
+                           structure, dataclasses.replace(options, step_tol=None))
         res = jax.tree_util.tree_map(np.asarray, res)
         out.append(jax.tree_util.tree_map(lambda x: x[:len(idx)], res))
     res = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
