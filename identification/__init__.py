@@ -34,6 +34,7 @@ from ._plan import PlannedRecord as PlannedRecord
 from ._plan import TestPlan as TestPlan
 from ._plan import candidate_plans as candidate_plans
 from ._plan import fisher_std as fisher_std
+from ._plan import fisher_stds as fisher_stds
 from ._plan import plan_from_records as plan_from_records
 from ._plan import plan_test as plan_test
 from ._posterior import MIN_DRAWS as MIN_DRAWS

@@ -108,22 +108,41 @@ def _frf_arrays(problem, idx, lines):
     return freq, acc, std
 
 
+def _members(problem, is_frf, s):
+    data, models = problem.data, problem.models
+    sine_idx = [i for i, d in enumerate(data) if d.speed_rpm == s and not is_frf(d)]
+    frf_idx = [i for i, d in enumerate(data) if d.speed_rpm == s and is_frf(d)]
+    orbit = [j for j, i in enumerate(sine_idx) if models[i] == "nonlinear"]
+    n_lines = int(sum(np.asarray(data[i].frequency_hz).size for i in frf_idx))
+    return sine_idx, frf_idx, orbit, n_lines
+
+
+def padded_counts(problem, is_frf) -> dict:
+    """{speed: (sine rows, orbit slots, FRF lines)} after padding to size classes."""
+    out = {}
+    for s in problem.speeds:
+        sine_idx, _, orbit, n_lines = _members(problem, is_frf, s)
+        out[s] = (size_class(len(sine_idx)), size_class(len(orbit)), size_class(n_lines))
+    return out
+
+
 def build_data(problem, is_frf):
-    """(`FitData`, `Structure`, layout) of a `Problem` (see the module docstring)."""
+    """(`FitData`, `Structure`, layout) of a `Problem` (see the module docstring); padded
+    further to `problem.pad`'s counts where it gives them."""
     data, models = problem.data, problem.models
     sines = [d for d in data if not is_frf(d)]
     h = sines[0].harmonics.size if sines else 1
+    if problem.pad is not None:
+        h = problem.pad["harmonics"]
     groups, layout, pos = [], {}, 0
+    pad = {} if problem.pad is None else problem.pad["counts"]
     for gi, s in enumerate(problem.speeds):
-        sine_idx = [i for i, d in enumerate(data) if d.speed_rpm == s and not is_frf(d)]
-        frf_idx = [i for i, d in enumerate(data) if d.speed_rpm == s and is_frf(d)]
-        rows = size_class(len(sine_idx))
-        orbit = [j for j, i in enumerate(sine_idx) if models[i] == "nonlinear"]
-        slots = size_class(len(orbit))
+        sine_idx, frf_idx, orbit, n_lines = _members(problem, is_frf, s)
+        rows, slots, lines = (max(a, b) for a, b in zip(
+            (size_class(len(sine_idx)), size_class(len(orbit)), size_class(n_lines)),
+            pad.get(s, (0, 0, 0))))
         orbit_index = np.asarray(orbit + [orbit[0] if orbit else 0] * (slots - len(orbit)),
                                  int)
-        n_lines = int(sum(np.asarray(data[i].frequency_hz).size for i in frf_idx))
-        lines = size_class(n_lines)
         sf, sF, sA, sS = _sine_arrays(problem, sine_idx, h, rows)
         first = np.zeros(rows, bool)
         nl = np.zeros(rows, bool)

@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _model
 from ._measurement import HarmonicData
 from ._problem import DEFAULT_FIT, Problem
 from ._records import Record
@@ -139,44 +142,99 @@ def _planned_data(plan: TestPlan, prior, sample_rate_hz, distortion, accel_snr_d
     return out
 
 
-def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
-               force_snr_db=40.0, sample_rate_hz=10240.0, distortion=(0.04, 0.02),
-               nonlinear_ratio=PLAN_RATIO):
-    """(names, expected std of the scaled parameters, scaled singular values, problem).
+def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, **kw):
+    """(names, expected std of the scaled parameters, scaled singular values, problem) of
+    one plan (see `fisher_stds`)."""
+    return fisher_stds([plan], prior, fit_names, **kw)[0]
+
+
+def _batched(fn, problems, *args):
+    """`fn(*args, fit_data, structure)` for every problem of one layout, in one program."""
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs),
+                                     *[pb.fit_data for pb in problems])
+    return fn(*args, stacked, problems[0].structure)
+
+
+@eqx.filter_jit
+def _predictions(theta, data, structure):
+    return jax.vmap(lambda d: _model.predict(theta, d, structure))(data)
+
+
+@eqx.filter_jit
+def _jacobians(theta, data, structure):
+    return jax.vmap(lambda d: _model._rj(theta, d, structure)[1])(data)
+
+
+def _problems(datas, prior, fit_names, **kw):
+    """Problems of the plans, padded to one layout where their structures agree."""
+    first = [Problem(d, prior, fit_names, priors=None, **kw) for d in datas]
+    pad = first[0].common_padding(first[1:])
+    if pad is None:
+        return first, False
+    return [Problem(d, prior, fit_names, priors=None, pad=pad, **kw) for d in datas], True
+
+
+def fisher_stds(plans, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
+                force_snr_db=40.0, sample_rate_hz=10240.0, distortion=(0.04, 0.02),
+                nonlinear_ratio=PLAN_RATIO):
+    """Per plan: (names, expected std of the scaled parameters, scaled singular values,
+    problem).
 
     `nonlinear_ratio`: the joint amplitude / preload deformation above which the
     periodic-orbit model replaces the linearised one (`PLAN_RATIO`); None: the fit's own
     rule (predicted linearisation error against the planned noise), which reproduces a
-    fit's models exactly but compiles the orbit model more often.
+    fit's models exactly but compiles the orbit model more often. Every plan is padded to
+    one layout, so the predicted signals of all plans are one compiled program and their
+    Jacobians another.
     """
-    data = _planned_data(plan, prior, sample_rate_hz, distortion, accel_snr_db, force_snr_db)
+    datas = [_planned_data(plan, prior, sample_rate_hz, distortion, accel_snr_db,
+                           force_snr_db) for plan in plans]
     # The noise levels follow the predicted signal levels, from the same models as the
     # Jacobian below (the harmonics of a strongly nonlinear record are the orbit's).
-    first = Problem(data, prior, fit_names, priors=None,
-                    nonlinear_ratio=PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio)
-    acc = first.model_harmonics(np.zeros(first.n_params))
-    noisy = []
-    for d, a in zip(data, acc):
-        if hasattr(d, "accelerance"):
-            noisy.append(d)
-            continue
-        n = d.n_samples
-        var_a = 2 * (np.sum(np.abs(a) ** 2) / 2) * 10 ** (-accel_snr_db / 10) / n
-        var_f = 2 * (np.sum(np.abs(d.force) ** 2) / 2) * 10 ** (-force_snr_db / 10) / n
-        noisy.append(dataclasses.replace(d, acceleration=np.asarray(a),
-                                         acceleration_var=np.full((a.size, 2), var_a),
-                                         force_var=np.full((a.size, 2), var_f)))
+    firsts, common = _problems(
+        datas, prior, fit_names,
+        nonlinear_ratio=PLAN_RATIO if nonlinear_ratio is None else nonlinear_ratio)
+    zero = jnp.zeros(firsts[0].n_params)
+    if common:
+        preds = jax.tree_util.tree_map(np.asarray, _batched(_predictions, firsts, zero))
+    noisy_sets = []
+    for k, (data, first) in enumerate(zip(datas, firsts)):
+        if common:
+            pred_k = [tuple(x[k] for x in group) for group in preds]
+            acc = [pred_k[first.layout[i][0]][0 if first.layout[i][1] == 0 else 1]
+                   [first.layout[i][3]] for i in range(len(data))]
+        else:
+            acc = first.model_harmonics(np.zeros(first.n_params))
+        noisy = []
+        for d, a in zip(data, acc):
+            if hasattr(d, "accelerance"):
+                noisy.append(d)
+                continue
+            n = d.n_samples
+            var_a = 2 * (np.sum(np.abs(a) ** 2) / 2) * 10 ** (-accel_snr_db / 10) / n
+            var_f = 2 * (np.sum(np.abs(d.force) ** 2) / 2) * 10 ** (-force_snr_db / 10) / n
+            noisy.append(dataclasses.replace(d, acceleration=np.asarray(a),
+                                             acceleration_var=np.full((a.size, 2), var_a),
+                                             force_var=np.full((a.size, 2), var_f)))
+        noisy_sets.append(noisy)
     # Planning accepts the linearised model up to a joint amplitude of 30 % of the preload
     # deformation (the 100 N sine at resonance): it changes the predicted standard errors by
     # a few per cent, and saves compiling the periodic-orbit model for the whole table.
-    problem = Problem(noisy, prior, fit_names, priors=None, nonlinear_ratio=nonlinear_ratio)
-    jac = problem.rj(np.zeros(problem.n_params))[1][problem.used_mask()]
-    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-    inv = np.where(sv > sv[0] * 1e-14, 1.0 / np.maximum(sv, 1e-300) ** 2, np.inf)
-    with np.errstate(invalid="ignore"):
-        var = np.where(np.any((np.abs(vt) > 1e-3) & ~np.isfinite(inv)[:, None], axis=0),
-                       np.inf, (vt.T**2 * np.where(np.isfinite(inv), inv, 0.0)[None, :]).sum(1))
-    return problem.names, np.sqrt(var), sv / sv[0], problem
+    problems, common = _problems(noisy_sets, prior, fit_names, nonlinear_ratio=nonlinear_ratio)
+    if common:
+        jacs = np.asarray(_batched(_jacobians, problems, zero))
+    out = []
+    for k, problem in enumerate(problems):
+        jac = jacs[k] if common else problem.rj(np.zeros(problem.n_params))[1]
+        jac = jac[:problem.used_mask().size][problem.used_mask()]
+        _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+        inv = np.where(sv > sv[0] * 1e-14, 1.0 / np.maximum(sv, 1e-300) ** 2, np.inf)
+        with np.errstate(invalid="ignore"):
+            var = np.where(np.any((np.abs(vt) > 1e-3) & ~np.isfinite(inv)[:, None], axis=0),
+                           np.inf,
+                           (vt.T**2 * np.where(np.isfinite(inv), inv, 0.0)[None, :]).sum(1))
+        out.append((problem.names, np.sqrt(var), sv / sv[0], problem))
+    return out
 
 
 def plan_test(prior, fit_names=DEFAULT_FIT, plans=None, *, accel_snr_db=35.0,
@@ -184,9 +242,8 @@ def plan_test(prior, fit_names=DEFAULT_FIT, plans=None, *, accel_snr_db=35.0,
     """Compare plans; recommend the shortest one that identifies every chosen parameter."""
     plans = candidate_plans() if plans is None else plans
     rows = []
-    for plan in plans:
-        names, std, sv, _ = fisher_std(plan, prior, fit_names, accel_snr_db=accel_snr_db,
-                                       force_snr_db=force_snr_db)
+    for plan, (names, std, sv, _) in zip(plans, fisher_stds(
+            plans, prior, fit_names, accel_snr_db=accel_snr_db, force_snr_db=force_snr_db)):
         ok = std < threshold
         rows.append(dict(name=plan.name, records=len(plan.records), test_time_s=plan.test_time_s,
                          max_force_n=max(r.force_n for r in plan.records),

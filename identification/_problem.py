@@ -138,13 +138,14 @@ class Problem:
     `nonlinear_ratio`: instead of the error rule, choose by the joint amplitude / preload
     deformation (planning, where the noise is not known yet).
     `priors`: {name: sigma of theta}, "default" (each parameter's `prior_sigma`) or None
-    (maximum likelihood).
+    (maximum likelihood). `pad`: a common layout (`common_padding`) for batching problems.
     """
 
     def __init__(self, data, prior, fit=DEFAULT_FIT, model: str = "auto",
                  max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default",
                  nonlinear_ratio: float | None = None, model_error: float = MODEL_ERROR,
-                 frf_left_out: dict | None = None, model_theta=None, previous=None):
+                 frf_left_out: dict | None = None, model_theta=None, previous=None,
+                 pad=None):
         if not data:
             raise ValueError("no records")
         if model not in ("auto", "linear", "first-order", "nonlinear"):
@@ -169,6 +170,11 @@ class Problem:
                     f"sample rate above {d.frequency_hz / max_harmonic_fraction:.0f} Hz or "
                     "leave it out")
         self.speeds = sorted({d.speed_rpm for d in self.data})
+        # `pad` (`common_padding`): a layout shared with other problems (more speeds, more
+        # rows, slots and lines than this one needs), so that they batch in one program.
+        self.pad = pad
+        if pad is not None:
+            self.speeds = sorted(set(self.speeds) | set(pad["speeds"]))
         th = prior.thermal
         if ({"d_n", "d_b", "expansion"} & set(self.fit)) and not th.enabled:
             raise ValueError("fitting thermal offsets needs thermal.enabled = true in the prior")
@@ -334,6 +340,24 @@ class Problem:
         r = _model.residual(theta, self.fit_data if fit_data is None else fit_data,
                             self.structure)
         return r[self._residual_rows(r.shape[0])]
+
+    def common_padding(self, others) -> dict | None:
+        """A layout that fits this problem and `others` (union of the speeds, the largest
+        padded counts per speed), or None where the structures differ (per-speed
+        parameters at different speeds)."""
+        from ._groups import padded_counts
+
+        problems = [self, *others]
+        if any(s is not None for pb in problems for s in pb.param_speeds):
+            return None
+        speeds = sorted({s for pb in problems for s in pb.speeds})
+        counts = {s: (0, 0, 0) for s in speeds}
+        for pb in problems:
+            for s, c in padded_counts(pb, is_frf).items():
+                counts[s] = tuple(max(a, b) for a, b in zip(counts[s], c))
+        harmonics = max([d.harmonics.size for pb in problems for d in pb.data
+                         if not is_frf(d)] or [1])
+        return dict(speeds=speeds, counts=counts, harmonics=harmonics)
 
     @property
     def n_data(self) -> int:
