@@ -210,9 +210,9 @@ def part_scipy(max_nfev: int):
     data, prior, truth_values = _paper_problem()
     pb = idn.Problem(data, prior, FIT, priors=None)
     speed = pb.speeds[0]
-    (group,) = pb.groups
-    meas = np.asarray(group.lin_acc)
-    scale = np.asarray(group.lin_scale)
+    (group,) = pb.fit_data.groups
+    meas = np.asarray(group.sine_acc)
+    scale = np.asarray(group.sine_scale)
     rows = {i: (pb.layout[i][2], pb.layout[i][3]) for i in range(len(data))}
     assert all(pb.layout[i][:2] == (0, 0) for i in range(len(data))), "linear records only"
     evals = [0]

@@ -131,16 +131,32 @@ def _unpack(coef, cov_diag, n_harm, drift_order):
 
 def refine_frequency(record: Record, n_harmonics: int = N_HARMONICS) -> float:
     """Excitation frequency [Hz] minimising the force fit residual near the header value."""
-    from scipy.optimize import minimize_scalar
-
     t, x = record.time, record.force
     half_bin = 0.5 / record.duration
     f0 = record.frequency_hz
     # Fundamental + DC only: cheap, and the fundamental dominates the frequency estimate.
     obj = lambda f: _fit(x, t, f, 1, 0)[2]
-    res = minimize_scalar(obj, bounds=(f0 - half_bin, f0 + half_bin), method="bounded",
-                          options={"xatol": 1e-7 * f0})
-    return float(res.x) if res.fun <= obj(f0) else f0
+    f, fun = _golden_section(obj, f0 - half_bin, f0 + half_bin, 1e-7 * f0)
+    return float(f) if fun <= obj(f0) else f0
+
+
+def _golden_section(fn, lo, hi, xtol):
+    """(x, fn(x)) minimising a unimodal `fn` on [lo, hi] to within `xtol` (golden section:
+    within half a frequency bin the force fit's residual has a single minimum)."""
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = fn(c), fn(d)
+    while b - a > xtol:
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = fn(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = fn(d)
+    return (c, fc) if fc <= fd else (d, fd)
 
 
 def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
