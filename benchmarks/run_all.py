@@ -16,8 +16,10 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 ORDER = ["bench_simulate.py", "bench_sweep.py", "bench_orbits.py", "bench_identify.py",
+         "bench_fit_solver.py",
          "bench_design.py"]
-RESULT_ORDER = ["simulate.md", "b1_sweep.md", "orbits.md", "identify.md", "design.md"]
+RESULT_ORDER = ["simulate.md", "b1_sweep.md", "orbits.md", "identify.md", "fit_solver.md",
+                "design.md"]
 
 
 def assemble() -> str:

@@ -1,7 +1,7 @@
 """Multi-start fit of a `Problem` (optimistix), with its own convergence evidence.
 
-The optimiser (Levenberg-Marquardt by optimistix, every start one lane of one compiled,
-vmapped solve: `_solve.py`) stops on the remaining-step test below or on its own
+The optimiser (optimistix's dogleg, every start one lane of one compiled, vmapped solve:
+`_solve.py`) stops on the remaining-step test below or on its own
 tolerances; either way the test is made again at the returned point, and only that is taken
 as convergence.
 At the optimum the Gauss-Newton step that would remain is computed from the residual and
@@ -155,7 +155,7 @@ def _fit_from(problem: Problem, points, options: SolveOptions) -> FitResult:
         r, j = out["residual"][k][keep], out["jacobian"][k][keep]
         step = remaining_step(r, j, rows, max_std)
         runs.append(dict(start=problem.values(np.asarray(th0)).tolist(),
-                         theta=out["theta"][k], residual=r, jacobian=j,
+                         theta=out["theta"][k], residual=r, jacobian=j, step=step,
                          cost=float(out["cost"][k]), steps=int(out["steps"][k]),
                          evaluations=int(out["steps"][k]),
                          optimizer_converged=bool(step < options.step_tol),
@@ -164,11 +164,10 @@ def _fit_from(problem: Problem, points, options: SolveOptions) -> FitResult:
     for run in runs:
         run["same_minimum"] = bool(abs(run["cost"] - best["cost"])
                                    <= SAME_COST_RTOL * max(1.0, best["cost"]))
-    theta, r, j = best["theta"], best["residual"], best["jacobian"]
+    theta, r, j, step = best["theta"], best["residual"], best["jacobian"], best["step"]
     for run in runs:
         run["theta"] = np.asarray(run["theta"]).tolist()
-        del run["residual"], run["jacobian"]
-    step = remaining_step(r, j, rows, max_std)
+        del run["residual"], run["jacobian"], run["step"]
     agree = sum(run["same_minimum"] for run in runs)
     # The evidence at the returned point decides, not the optimiser's own stopping rule.
     converged = bool(step < STEP_TOL and (len(runs) == 1 or agree >= 2))

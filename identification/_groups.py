@@ -12,8 +12,8 @@ a layout (see `_model.py` and `_solve.py`).
 Within a speed group the data residual holds the sine records' harmonics (R, H) as all real
 parts then all imaginary parts, then the FRF lines (L,) likewise; the prior's p entries
 follow the last group (zero where a parameter has no prior). `layout[i] = (group, kind,
-rows, selector)`: record i's group, kind (0 sine, 2 FRF), residual rows and position in its
-group's prediction.
+rows, selector)`: record i's group, kind (0 sine, 1 FRF), residual rows and position in its
+group's prediction (`predict`'s pair, indexed by kind).
 """
 
 from __future__ import annotations
@@ -161,7 +161,7 @@ def build_data(problem, is_frf):
         start = 0
         for i in frf_idx:
             n = np.asarray(data[i].frequency_hz).size
-            layout[i] = (gi, 2, np.concatenate([pos + start + np.arange(n),
+            layout[i] = (gi, 1, np.concatenate([pos + start + np.arange(n),
                                                 pos + lines + start + np.arange(n)]),
                          slice(start, start + n))
             start += n

@@ -2,7 +2,7 @@
 
 Host-side (numpy) helpers shared by the fit's evidence (`_fit.py`), the uncertainty and the
 profile likelihood; the solve itself is `_solve.py` (optimistix), whose in-loop stopping
-test is the traced twin of `gn_step_sigma`.
+test (`_solve.gn_step`) is the traced twin of `gn_step_sigma`.
 """
 
 from __future__ import annotations

@@ -21,7 +21,12 @@ import jax.numpy as jnp
 import bsfs_jax
 
 from ._groups import FitData, Structure
-from ._measurement import linear_acceleration, linearisation_error, nonlinear_acceleration
+from ._measurement import (
+    linear_acceleration,
+    linearisation_error,
+    nonlinear_acceleration,
+    receptance,
+)
 
 # A trial point whose model is not finite (a joint without preload) costs this per entry.
 BAD_RESIDUAL = 1e6
@@ -129,8 +134,6 @@ def predictions(theta, data: FitData, structure: Structure):
 
 def static_compliance(theta, data: FitData, structure: Structure, group: int):
     """Static compliance at the nut x_n / P [m/N] of speed group `group`."""
-    from ._measurement import receptance
-
     system = bsfs_jax.build_system(params_at(theta, data, structure, group))
     return jnp.real(receptance(system, jnp.zeros(1))[0, 2])
 

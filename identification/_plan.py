@@ -171,7 +171,7 @@ def _problems(datas, prior, fit_names, **kw):
     pad = first[0].common_padding(first[1:])
     if pad is None:
         return first, False
-    return [Problem(d, prior, fit_names, priors=None, pad=pad, **kw) for d in datas], True
+    return [pb.padded(pad) for pb in first], True
 
 
 def fisher_stds(plans, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
@@ -200,9 +200,7 @@ def fisher_stds(plans, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
     noisy_sets = []
     for k, (data, first) in enumerate(zip(datas, firsts)):
         if common:
-            pred_k = [tuple(x[k] for x in group) for group in preds]
-            acc = [pred_k[first.layout[i][0]][0 if first.layout[i][1] == 0 else 1]
-                   [first.layout[i][3]] for i in range(len(data))]
+            acc = first.per_record([tuple(x[k] for x in group) for group in preds])
         else:
             acc = first.model_harmonics(np.zeros(first.n_params))
         noisy = []

@@ -21,6 +21,7 @@ speeds share stiffness, preload and damping; each speed gets its own thermal off
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import equinox as eqx
@@ -138,14 +139,13 @@ class Problem:
     `nonlinear_ratio`: instead of the error rule, choose by the joint amplitude / preload
     deformation (planning, where the noise is not known yet).
     `priors`: {name: sigma of theta}, "default" (each parameter's `prior_sigma`) or None
-    (maximum likelihood). `pad`: a common layout (`common_padding`) for batching problems.
+    (maximum likelihood).
     """
 
     def __init__(self, data, prior, fit=DEFAULT_FIT, model: str = "auto",
                  max_harmonic_fraction: float = MAX_HARMONIC_FRACTION, priors="default",
                  nonlinear_ratio: float | None = None, model_error: float = MODEL_ERROR,
-                 frf_left_out: dict | None = None, model_theta=None, previous=None,
-                 pad=None):
+                 frf_left_out: dict | None = None, model_theta=None, previous=None):
         if not data:
             raise ValueError("no records")
         if model not in ("auto", "linear", "first-order", "nonlinear"):
@@ -170,11 +170,8 @@ class Problem:
                     f"sample rate above {d.frequency_hz / max_harmonic_fraction:.0f} Hz or "
                     "leave it out")
         self.speeds = sorted({d.speed_rpm for d in self.data})
-        # `pad` (`common_padding`): a layout shared with other problems (more speeds, more
-        # rows, slots and lines than this one needs), so that they batch in one program.
-        self.pad = pad
-        if pad is not None:
-            self.speeds = sorted(set(self.speeds) | set(pad["speeds"]))
+        # A layout shared with other problems (`padded`), so that they batch in one program.
+        self.pad = None
         th = prior.thermal
         if ({"d_n", "d_b", "expansion"} & set(self.fit)) and not th.enabled:
             raise ValueError("fitting thermal offsets needs thermal.enabled = true in the prior")
@@ -341,6 +338,15 @@ class Problem:
                             self.structure)
         return r[self._residual_rows(r.shape[0])]
 
+    def padded(self, pad) -> Problem:
+        """This problem in the common layout `pad` (`common_padding`): the same records,
+        models and weights, more speeds, rows and lines (no new screening)."""
+        out = copy.copy(self)
+        out.pad = pad
+        out.speeds = sorted(set(self.speeds) | set(pad["speeds"]))
+        out.fit_data, out.structure, out.layout = build_data(out, is_frf)
+        return out
+
     def common_padding(self, others) -> dict | None:
         """A layout that fits this problem and `others` (union of the speeds, the largest
         padded counts per speed), or None where the structures differ (per-speed
@@ -374,8 +380,13 @@ class Problem:
     def model_harmonics(self, theta):
         """Model accelerations per record in data order (numpy): harmonics or FRF lines."""
         preds = _model.predictions(jnp.asarray(theta, float), self.fit_data, self.structure)
+        return self.per_record(preds)
+
+    def per_record(self, preds):
+        """A prediction per group ([(sine (R, H), FRF (L,))], `_model.predict`) -> the model
+        values of each record in data order (numpy)."""
         out = []
         for i in range(len(self.data)):
             gi, kind, _, row = self.layout[i]
-            out.append(np.asarray(preds[gi][0 if kind == 0 else 1])[row])
+            out.append(np.asarray(preds[gi][kind])[row])
         return out

@@ -7,13 +7,15 @@ held-parameter variants (the profile likelihood), model-choice iterations and re
 a traced array of a fixed layout, and lanes run in batches of `LANE_CLASSES` (4: a single
 start is padded to 4 lanes, more are cut into calls of 4). So a layout compiles once.
 
-Held parameters enter as theta = where(free, z, theta0): their Jacobian columns are zero,
-the damped step leaves them where they are.
+Held parameters enter as theta = where(free, z, theta0), and rows z - theta0 (zero at the
+start, and they stay so) pin them: the Jacobian keeps full column rank for every descent.
 
-The solver is Levenberg-Marquardt with Moré's trust-region update of the damping
-(`optimistix.LevenbergMarquardt`'s descent and `ClassicalTrustRegion`; the alternatives,
-chosen by `SolveOptions.method`, were measured on the bundled problems: see BENCHMARKS.md).
-It stops on the project's own convergence test rather than on small changes of y and f
+The solver is optimistix's dogleg (`DoglegDescent` and `ClassicalTrustRegion`, as
+`optimistix.Dogleg`) whose Gauss-Newton point comes from a truncated SVD: singular
+directions below the information floor (`FitData.info_floor`, a maximum-likelihood fit's
+directions without information) are left out. The alternatives (`SolveOptions.method`)
+were measured on the paper test: `benchmarks/bench_fit_solver.py`. It stops on the
+project's own convergence test rather than on small changes of y and f
 (which the ODE solver's noise may never give): the remaining Gauss-Newton step, in units of
 its own standard error, below `step_tol` in every informative direction (`_fit.py`
 explains the test). Its Cauchy test (rtol, atol on theta and the residual) is kept as a
@@ -33,14 +35,15 @@ import numpy as np
 import optimistix as optx
 
 from ._groups import Structure
-from ._model import _rj, residual_with_jacobian
+from ._lm import NULL_RTOL
+from ._model import residual_with_jacobian
 
 LANE_CLASSES = (4,)
-NULL_RTOL = 1e-10
 
 
 def gn_step(r, j, floor):
-    """Largest |(U^T r)_k| over informative singular directions of J (traceable)."""
+    """Largest |(U^T r)_k| over informative singular directions of J: the traced twin of
+    `_lm.gn_step_sigma`, for the solver's own stopping test."""
     u, s, _ = jnp.linalg.svd(j, full_matrices=False)
     keep = s > jnp.maximum(s[0] * NULL_RTOL, floor)
     proj = jnp.abs(u.T @ r)
@@ -62,28 +65,41 @@ class StepTestGaussNewton(optx.AbstractGaussNewton):
 
     def terminate(self, fn, y, args, options, state, tags):
         cauchy, result = super().terminate(fn, y, args, options, state, tags)
-        j = state.f_info.jac.as_matrix() * args[3][None, :]  # d r / d theta
-        j = jnp.where(args[1][None, :], j, 0.0)  # the pinning rows carry no information
+        j = jnp.where(args[1][None, :], state.f_info.jac.as_matrix(), 0.0)  # no pinning rows
         step = gn_step(state.f_info.residual, j, args[2].info_floor)
         done = (~state.first_step) & (step < self.step_tol)
         return cauchy | done, result
+
+
+class TruncatedDoglegDescent(optx.DoglegDescent):
+    """optimistix's dogleg descent whose Gauss-Newton point leaves out the singular
+    directions of the current Jacobian below `floor` (lineax's SVD with rcond = floor / the
+    largest singular value; at least round-off)."""
+
+    floor: jax.Array = 0.0
+
+    def query(self, y, f_info, state):
+        s0 = jnp.linalg.svd(f_info.jac.as_matrix(), compute_uv=False)[0]
+        rcond = jnp.clip(self.floor / jnp.maximum(s0, 1e-300), 1e-13, 0.5)
+        inner = optx.DoglegDescent(linear_solver=lx.SVD(rcond=rcond),
+                                   root_finder=self.root_finder,
+                                   trust_region_norm=self.trust_region_norm)
+        return inner.query(y, f_info, state)
 
 
 def _quiet(**kwargs):
     return None
 
 
-def make_solver(method: str, step_tol: float, rcond=None) -> StepTestGaussNewton:
-    """The descent and search of optimistix's solvers, with the step test. `rcond`: the
-    dogleg's Gauss-Newton point leaves out singular directions below rcond x the largest
-    (the directions without information of a maximum-likelihood fit)."""
+def make_solver(method: str, step_tol, floor=0.0) -> StepTestGaussNewton:
+    """The descent and search of optimistix's solvers, with the step test. `floor`: the
+    dogleg's Gauss-Newton point leaves out singular directions below it."""
     if method == "lm":  # optx.LevenbergMarquardt
         descent, search = optx.DampedNewtonDescent(), optx.ClassicalTrustRegion()
     elif method == "indirect-lm":  # optx.IndirectLevenbergMarquardt (Moré's lambda search)
         descent, search = optx.IndirectDampedNewtonDescent(), optx.ClassicalTrustRegion()
     elif method == "dogleg":  # optx.Dogleg
-        descent = optx.DoglegDescent(linear_solver=lx.SVD(rcond=rcond))
-        search = optx.ClassicalTrustRegion()
+        descent, search = TruncatedDoglegDescent(floor=floor), optx.ClassicalTrustRegion()
     elif method == "gauss-newton":  # optx.GaussNewton with a backtracking line search
         descent, search = optx.NewtonDescent(), optx.BacktrackingArmijo()
     else:
@@ -99,35 +115,23 @@ class SolveOptions:
     method: str = "dogleg"
     max_steps: int = 200
     step_tol: float = 1e-3
-    scale: bool = False  # solve in z = d theta, d the Jacobian's column norms at the start
 
 
 def _solve_lane(theta0, free, data, step_tol, structure, options):
     def fn(z, args):
-        theta0, free, data, d = args
-        theta = jnp.where(free, z / d, theta0)
-        # Held parameters are pinned by rows (z - d theta0) that are zero at the solve's
-        # start and stay so: the Jacobian keeps full column rank for every descent.
-        pin = jnp.where(free, 0.0, z - d * theta0)
+        theta0, free, data = args
+        theta = jnp.where(free, z, theta0)
+        pin = jnp.where(free, 0.0, z - theta0)  # held parameters (module docstring)
         return jnp.concatenate([residual_with_jacobian(theta, data, structure), pin]), None
 
-    j0 = jnp.where(free[None, :], _rj(theta0, data, structure)[1], 0.0)
-    if options.scale:
-        norms = jnp.sqrt(jnp.sum(j0**2, axis=0))
-        d = jnp.where(norms > 0, norms, 1.0)
-    else:
-        d = jnp.ones_like(theta0)
-    s0 = jnp.linalg.svd(j0 / d[None, :], compute_uv=False)[0]
-    rcond = jnp.clip(data.info_floor / jnp.maximum(s0, 1e-300), 1e-13, 0.5)
-    solver = make_solver(options.method, step_tol, rcond)
-    sol = optx.least_squares(fn, solver, d * theta0, args=(theta0, free, data, d),
-                             has_aux=True, max_steps=options.max_steps, throw=False,
-                             options=dict(jac="fwd"))
-    theta = jnp.where(free, sol.value / d, theta0)
+    solver = make_solver(options.method, step_tol, data.info_floor)
+    sol = optx.least_squares(fn, solver, theta0, args=(theta0, free, data), has_aux=True,
+                             max_steps=options.max_steps, throw=False, options=dict(jac="fwd"))
+    theta = jnp.where(free, sol.value, theta0)
     f_info = sol.state.f_info
     n = f_info.residual.shape[0] - theta0.shape[0]  # without the pinning rows
-    r, j = f_info.residual[:n], f_info.jac.as_matrix()[:n] * d[None, :]
-    j = jnp.where(free[None, :], j, 0.0)
+    r = f_info.residual[:n]
+    j = jnp.where(free[None, :], f_info.jac.as_matrix()[:n], 0.0)
     codes = jnp.stack([sol.result == optx.RESULTS.successful,
                        sol.result == optx.RESULTS.nonlinear_max_steps_reached])
     return dict(theta=theta, residual=r, jacobian=j, cost=0.5 * jnp.sum(r**2),

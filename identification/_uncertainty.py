@@ -35,11 +35,8 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-import bsfs_jax
-
 from ._fit import FitResult
 from ._lm import NO_INFORMATION_STD, informative
-from ._measurement import receptance
 from ._model import compliance_and_gradient
 from ._problem import is_frf
 
@@ -89,12 +86,6 @@ class Uncertainty:
         if self.determined[i]:
             return "determined by the data"
         return "prior-dominated" if self.prior_sigma is not None else "not determined"
-
-
-def static_compliance(problem, theta, speed):
-    """Static compliance at the nut x_n / P [m/N] for the fitted parameters at `speed`."""
-    system = bsfs_jax.build_system(problem.params_at(theta, speed))
-    return jnp.real(receptance(system, jnp.zeros(1))[0, 2])
 
 
 def _record_dof(problem) -> list[str]:
