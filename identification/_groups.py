@@ -42,6 +42,9 @@ class Structure:
     groups: tuple  # speed-group index of each parameter (-1: shared by every speed)
     log: tuple  # bool per parameter: theta = ln(value / prior), else value - prior [um]
     n_groups: int
+    # Whether the first-order correction is in the program: where the models are chosen by
+    # the predicted-error rule (any iteration may choose it) or forced to "first-order".
+    first_order: bool = True
 
 
 class GroupData(eqx.Module):
@@ -174,7 +177,8 @@ def build_data(problem, is_frf):
     structure = Structure(tuple(problem.keys),
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),
-                          tuple(bool(x) for x in problem.is_log), len(problem.speeds))
+                          tuple(bool(x) for x in problem.is_log), len(problem.speeds),
+                          problem.may_use_first_order)
     return fit_data, structure, layout
 
 

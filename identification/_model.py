@@ -49,11 +49,12 @@ def params_at(theta, data: FitData, structure: Structure, group: int):
     return p
 
 
-def _sine_model(system, g):
+def _sine_model(system, g, first_order: bool):
     lin = linear_acceleration(system, g.sine_freq, g.sine_force)
-    corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(system, g.sine_freq[:, 0],
-                                                               g.sine_force)
-    lin = lin + jnp.where(g.sine_first[:, None], corr, 0.0)
+    if first_order:
+        corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(
+            system, g.sine_freq[:, 0], g.sine_force)
+        lin = lin + jnp.where(g.sine_first[:, None], corr, 0.0)
     if not g.orbit_index.shape[0]:
         return lin
     idx = g.orbit_index
@@ -71,7 +72,7 @@ def predict(theta, data: FitData, structure: Structure):
     out = []
     for gi, g in enumerate(data.groups):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
-        sine = (_sine_model(system, g) if g.sine_freq.shape[0]
+        sine = (_sine_model(system, g, structure.first_order) if g.sine_freq.shape[0]
                 else jnp.zeros(g.sine_freq.shape, complex))
         frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
                if g.frf_freq.shape[0] else jnp.zeros(0, complex))
@@ -119,12 +120,6 @@ def _residual_jvp(structure, primals, tangents):
 def residual_and_jacobian(theta, data: FitData, structure: Structure):
     """(residual, Jacobian): one compiled program per structure and layout."""
     return _rj(theta, data, structure)
-
-
-@eqx.filter_jit
-def residuals_batch(thetas, data: FitData, structure: Structure):
-    """Residuals at several theta (rows of `thetas`) in one program."""
-    return jax.vmap(lambda th: residual(th, data, structure))(thetas)
 
 
 @eqx.filter_jit

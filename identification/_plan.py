@@ -150,7 +150,7 @@ def fisher_std(plan: TestPlan, prior, fit_names=DEFAULT_FIT, **kw):
 
 def _batched(fn, problems, *args):
     """`fn(*args, fit_data, structure)` for every problem of one layout, in one program."""
-    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs),
+    stacked = jax.tree_util.tree_map(lambda *xs: np.stack(xs),
                                      *[pb.fit_data for pb in problems])
     return fn(*args, stacked, problems[0].structure)
 

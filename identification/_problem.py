@@ -228,6 +228,11 @@ class Problem:
                        frf_left_out=self.frf_left_out, **self._options)
 
     @property
+    def may_use_first_order(self) -> bool:
+        """Whether any record can be on the first-order model, now or after a re-choice."""
+        return self.chooses_models or self._choice["model"] == "first-order"
+
+    @property
     def chooses_models(self) -> bool:
         """Whether the models per record follow the predicted-error rule (model "auto"
         without a planning ratio), so that `fit` may re-choose them at the estimate."""
