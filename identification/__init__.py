@@ -8,7 +8,7 @@ Public API (the package uses only the public API of `bsfs_jax`):
   `write_record_tdms`;
 - FRFs: `FrfRecord`, `estimate_frf` (from chirp/random records), `frf_variance`,
   `write_frf_csv`, `write_frf_uff`;
-- synthetic data: `synthesize`, `TestEffects`;
+- synthetic data: `synthesize`, `synthesize_many` (one test, several seeds), `TestEffects`;
 - measurement model: `harmonic_analysis`, `HarmonicData`;
 - fitting: `FIT_PARAMETERS`, `DEFAULT_FIT`, `PRELOAD_FIT`, `MODEL_ERROR`, `parse_fit`,
   `parse_priors`, `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
@@ -64,6 +64,7 @@ from ._summary import preload_verdicts as preload_verdicts
 from ._summary import summary_text as summary_text
 from ._synth import TestEffects as TestEffects
 from ._synth import synthesize as synthesize
+from ._synth import synthesize_many as synthesize_many
 from ._tdms import load_tdms as load_tdms
 from ._tdms import write_record_tdms as write_record_tdms
 from ._uff import write_frf_uff as write_frf_uff

@@ -152,6 +152,11 @@ def _respond(system, forcing, ts, settings):
     return force, accelerations(system, x, v, force)[:, 2], res.result
 
 
+@eqx.filter_jit
+def _respond_many(system, forcings, ts, settings):
+    return jax.vmap(lambda f: _respond(system, f, ts, settings))(forcings)
+
+
 CHIRP_TAPER = 0.02  # fraction of the record in each sin^2 taper of a chirp
 RANDOM_TAPER_S = 0.01  # fade-in of the random force at the start of its settling time
 
@@ -170,9 +175,25 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
     ambient temperature, seed and `synthetic = "true"`. Raises `ValueError` for a bad band
     and `bsfs_jax.SolverError` if the simulation fails.
     """
+    return synthesize_many(params, frequency_hz, force_n, [seed], duration_s=duration_s,
+                           sample_rate_hz=sample_rate_hz, effects=effects, rtol=rtol,
+                           atol=atol, excitation=excitation, start_hz=start_hz,
+                           stop_hz=stop_hz)[0]
+
+
+def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *,
+                    duration_s: float = 2.0, sample_rate_hz: float = 10240.0,
+                    effects: TestEffects = TestEffects(), rtol: float = 1e-8,
+                    atol: float = 1e-12, excitation: str = "sine",
+                    start_hz: float | None = None, stop_hz: float | None = None) -> list:
+    """`synthesize` for several seeds at once: the same test repeated (new phases, noise and
+    drift per seed), the simulations as lanes of one vmapped integration. Record k is the
+    one `synthesize(..., seed=seeds[k])` makes (the same random draws, in the same order)."""
     if excitation not in ("sine", "chirp", "random"):
         raise ValueError(f"excitation must be 'sine', 'chirp' or 'random', got {excitation!r}")
-    rng = np.random.default_rng(seed)
+    rngs = [np.random.default_rng(s) for s in seeds]
+    if not rngs:
+        return []
     fs_hi = sample_rate_hz * effects.oversample
     n_rec = int(round(duration_s * sample_rate_hz))
     if excitation == "sine":
@@ -180,19 +201,19 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
             raise ValueError("a sine record needs frequency_hz")
         f = float(frequency_hz)
         n_settle = int(round(effects.settle_s * fs_hi))
-        forcing = ShakerForce(*(jnp.asarray(v, dtype=float) for v in (
+        forcings = [ShakerForce(*(jnp.asarray(v, dtype=float) for v in (
             force_n, f, rng.uniform(0, 2 * np.pi), effects.h2, effects.h3,
             rng.uniform(0, 2 * np.pi), rng.uniform(0, 2 * np.pi), effects.drift,
-            effects.drift_frequency_hz, rng.uniform(0, 2 * np.pi))))
+            effects.drift_frequency_hz, rng.uniform(0, 2 * np.pi)))) for rng in rngs]
         what, name = f"{f:g} Hz, {force_n:g} N", f"synthetic_{f:g}Hz_{force_n:g}N"
         meta = {"frequency_hz": f, "force_amplitude_n": float(force_n)}
     else:
         lo, hi = _band(start_hz, stop_hz, sample_rate_hz)
         n_settle = 0 if excitation == "chirp" else int(round(effects.settle_s * fs_hi))
-        forcing = (_chirp(rng, force_n, lo, hi, n_rec / sample_rate_hz, effects)
-                   if excitation == "chirp" else
-                   _random(rng, force_n, lo, hi, n_settle + n_rec * effects.oversample, fs_hi,
-                           effects))
+        forcings = [_chirp(rng, force_n, lo, hi, n_rec / sample_rate_hz, effects)
+                    if excitation == "chirp" else
+                    _random(rng, force_n, lo, hi, n_settle + n_rec * effects.oversample,
+                            fs_hi, effects) for rng in rngs]
         level = "force_amplitude_n" if excitation == "chirp" else "force_rms_n"
         what = f"{excitation} {lo:g}-{hi:g} Hz, {force_n:g} N"
         name = f"synthetic_{excitation}_{lo:g}-{hi:g}Hz_{force_n:g}N"
@@ -203,32 +224,37 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
     ts = jnp.arange(1, n_hi + 1) / fs_hi
     settings = bsfs_jax.SolverSettings(rtol=rtol, atol=atol, max_steps=4_000_000)
     system = bsfs_jax.build_system(params)
-    force, acc, result = _respond(system, forcing, ts, settings)
     from bsfs_jax.solvers import check_result
 
+    if len(forcings) == 1:
+        force, acc, result = _respond(system, forcings[0], ts, settings)
+        lanes = [(np.asarray(force), np.asarray(acc))]
+    else:
+        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *forcings)
+        force, acc, result = _respond_many(system, stacked, ts, settings)
+        force, acc = np.asarray(force), np.asarray(acc)
+        lanes = list(zip(force, acc))
     check_result(result, settings, f"synthetic record {what}")
-    force, acc = np.asarray(force), np.asarray(acc)
+    base = dict(meta, sample_rate_hz=float(sample_rate_hz),
+                speed_rpm=float(np.asarray(params.thermal.speed_rpm)),
+                ambient_c=float(np.asarray(params.thermal.ambient_c)), synthetic="true")
     cutoff = 0.4 * sample_rate_hz
-    force = _antialias(force, fs_hi, cutoff)[n_settle::effects.oversample]
-    acc = _antialias(acc, fs_hi, cutoff)[n_settle::effects.oversample]
     rms = lambda x: float(np.sqrt(np.mean((x - np.mean(x)) ** 2)))
-    force = (force + effects.force_dc_n
-             + rng.normal(0, rms(force) * 10 ** (-effects.force_snr_db / 20), force.size))
-    acc = (acc + effects.accel_dc_m_s2
-           + rng.normal(0, rms(acc) * 10 ** (-effects.accel_snr_db / 20), acc.size))
     t = np.arange(n_rec) / sample_rate_hz
-    meta.update({
-        "sample_rate_hz": float(sample_rate_hz),
-        "speed_rpm": float(np.asarray(params.thermal.speed_rpm)),
-        "ambient_c": float(np.asarray(params.thermal.ambient_c)),
-        "synthetic": "true",
-        "seed": float(seed),
-        "accel_snr_db": effects.accel_snr_db,
-        "force_snr_db": effects.force_snr_db,
-    })
     f0 = meta.get("frequency_hz", float("nan"))
-    return Record(t, force, acc, f0, float(force_n), float(sample_rate_hz), meta["speed_rpm"],
-                  meta["ambient_c"], meta, name)
+    records = []
+    for seed, rng, (force, acc) in zip(seeds, rngs, lanes):
+        force = _antialias(force, fs_hi, cutoff)[n_settle::effects.oversample]
+        acc = _antialias(acc, fs_hi, cutoff)[n_settle::effects.oversample]
+        force = (force + effects.force_dc_n
+                 + rng.normal(0, rms(force) * 10 ** (-effects.force_snr_db / 20), force.size))
+        acc = (acc + effects.accel_dc_m_s2
+               + rng.normal(0, rms(acc) * 10 ** (-effects.accel_snr_db / 20), acc.size))
+        m = dict(base, seed=float(seed), accel_snr_db=effects.accel_snr_db,
+                 force_snr_db=effects.force_snr_db)
+        records.append(Record(t, force, acc, f0, float(force_n), float(sample_rate_hz),
+                              m["speed_rpm"], m["ambient_c"], m, name))
+    return records
 
 
 def _band(start_hz, stop_hz, sample_rate_hz):

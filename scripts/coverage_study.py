@@ -9,7 +9,7 @@ re-drawn), fitted as the README's example fits them (`identification.identify`,
 "auto"), and for each parameter the script records whether the 95 % interval covers the
 truth, the z-score log(value / truth) / scaled_std, convergence and time.
 
-    python scripts/coverage_study.py                      # 120 replicates (~20 min, 2 cores)
+    python scripts/coverage_study.py                      # 120 replicates (~3.5 min, 2 cores)
     python scripts/coverage_study.py --quick              # 10 replicates, a check
     python scripts/coverage_study.py --design linear      # diagnosis designs, see DESIGNS
     python scripts/coverage_study.py --report-only        # tables and figure from the file
@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import gc
 import json
 import os
 import platform
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,7 +41,6 @@ from bsfs_jax.cli._common import setup_jax  # noqa: E402
 
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
-import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bsfs_jax  # noqa: E402
@@ -98,17 +97,25 @@ def record_seeds(replicate: int) -> list[int]:
 
 def synth_records(truth, replicate: int, over: dict):
     """The replicate's records (chirp first, then the sines), synthesised from the truth."""
+    return synth_batch(truth, [replicate], over)[0]
+
+
+def synth_batch(truth, replicates: list[int], over: dict) -> list[list]:
+    """The records of several replicates: each record's simulations for all of them as one
+    vmapped integration (`identification.synthesize_many`; the same records as one by one,
+    to the integration tolerance)."""
     eff = dataclasses.replace(idn.TestEffects(), **over.get("effects", {}))
-    seeds = record_seeds(replicate)
-    recs = [idn.synthesize(truth, None, over.get("chirp_force", CHIRP["force"]),
-                           duration_s=CHIRP["duration"], sample_rate_hz=FS, seed=seeds[0],
-                           excitation="chirp", start_hz=CHIRP["start"],
-                           stop_hz=CHIRP["stop"], effects=eff)]
-    for f, seed in zip(SINES, seeds[1:]):
+    seeds = [record_seeds(k) for k in replicates]
+    per_record = [idn.synthesize_many(
+        truth, None, over.get("chirp_force", CHIRP["force"]), [s[0] for s in seeds],
+        duration_s=CHIRP["duration"], sample_rate_hz=FS, excitation="chirp",
+        start_hz=CHIRP["start"], stop_hz=CHIRP["stop"], effects=eff)]
+    for j, f in enumerate(SINES):
         force = over.get("sine_force", {}).get(f, SINE_FORCE)
-        recs.append(idn.synthesize(truth, f, force, duration_s=SINE_S, sample_rate_hz=FS,
-                                   seed=seed, effects=eff))
-    return recs
+        per_record.append(idn.synthesize_many(truth, f, force, [s[j + 1] for s in seeds],
+                                              duration_s=SINE_S, sample_rate_hz=FS,
+                                              effects=eff))
+    return [list(recs) for recs in zip(*per_record)]
 
 
 _TEMPLATE = {}
@@ -143,11 +150,12 @@ def linear_data(truth, replicate: int):
     return out
 
 
-def noise_free_data(truth, replicate: int, over: dict):
+def noise_free_data(truth, replicate: int, over: dict, records=None):
     """The replicate's measurement data with the values of noise-free records (sensor SNR
-    300 dB, same seeds) and the standard errors of the noisy ones."""
+    300 dB, same seeds) and the standard errors of the noisy ones (`records`: the noisy
+    records, if already made)."""
     base = {k: v for k, v in over.items() if k != "source"}
-    noisy = [idn.measurement_data(r) for r in synth_records(truth, replicate, base)]
+    noisy = [idn.measurement_data(r) for r in (records or synth_records(truth, replicate, base))]
     clean = [idn.measurement_data(r) for r in synth_records(
         truth, replicate, dict(base, effects=dict(accel_snr_db=300.0, force_snr_db=300.0)))]
     out = []
@@ -160,6 +168,16 @@ def noise_free_data(truth, replicate: int, over: dict):
             out.append(dataclasses.replace(d, acceleration=c.acceleration, force=c.force,
                                            frequency_hz=c.frequency_hz))
     return out
+
+
+def batch_records(truth, design: str, replicates: list[int]) -> list:
+    """What `run_replicate` needs of each replicate before its fit: its synthetic records
+    (batched), or None where the design makes its data otherwise."""
+    over = DESIGNS[design][1]
+    if over.get("source") == "linear":
+        return [None] * len(replicates)
+    base = {k: v for k, v in over.items() if k != "source"}
+    return synth_batch(truth, replicates, base)
 
 
 def fit_data(data, prior):
@@ -188,19 +206,23 @@ def frf_arrays(data) -> dict:
     return out
 
 
-def run_replicate(truth, prior, design: str, replicate: int, frf_dir: Path | None) -> dict:
+def run_replicate(truth, prior, design: str, replicate: int, frf_dir: Path | None,
+                  records=None, synth_s: float | None = None) -> dict:
+    """One replicate: its data (from `records` where `batch_records` made them), the fit
+    and the row of the results file."""
     over = DESIGNS[design][1]
     t0 = time.perf_counter()
     if over.get("source") == "linear":
         data = linear_data(truth, replicate)
     elif over.get("source") == "noise-free":
-        data = noise_free_data(truth, replicate, over)
+        data = noise_free_data(truth, replicate, over, records)
     else:
-        recs = synth_records(truth, replicate, over)
+        recs = records or synth_records(truth, replicate, over)
         data = [idn.estimate_frf(r, min_coherence=over["min_coherence"])
                 if "min_coherence" in over and r.excitation != "sine"
                 else idn.measurement_data(r) for r in recs]
     t1 = time.perf_counter()
+    t0 -= synth_s or 0.0  # the replicate's share of its batch's synthesis
     pb, res, unc, profiled = fit_data(data, prior)
     t2 = time.perf_counter()
     if frf_dir is not None:
@@ -464,6 +486,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--replicates", type=int, default=120)
     ap.add_argument("--quick", action="store_true", help="10 replicates (a check)")
+    ap.add_argument("--batch", type=int, default=8,
+                    help="replicates synthesised together (one vmapped integration per record)")
     ap.add_argument("--design", choices=list(DESIGNS), default="bundled")
     ap.add_argument("--out", type=Path, default=None,
                     help="JSON lines file (default out/coverage/<design>.jsonl)")
@@ -492,22 +516,38 @@ def main(argv=None) -> int:
         truth, prior = truth_params(), bsfs_jax.preset()
         frf_dir = OUT / f"{args.design}_data" if args.save_frf else None
         t_start = time.perf_counter()
-        for j, k in enumerate(todo):
-            row = run_replicate(truth, prior, args.design, k, frf_dir)
-            # Each replicate's Problems compile their own programs; drop them (a long run
-            # otherwise runs out of memory maps: "LLVM compilation error: Cannot allocate").
-            jax.clear_caches()
-            gc.collect()
-            row["host"] = platform.node()
-            append_line(path, row)
-            rows.append(row)
-            el = time.perf_counter() - t_start
-            eta = el / (j + 1) * (len(todo) - j - 1)
-            zs = " ".join(f"{p['z']:+.2f}" for p in row["params"].values())
-            print(f"[{j + 1}/{len(todo)}] replicate {k}: z = {zs}  covered "
-                  f"{sum(p['covers'] for p in row['params'].values())}/{len(row['params'])}  "
-                  f"conv {row['converged']}  synth {row['synth_s']:.1f} s fit "
-                  f"{row['fit_s']:.1f} s  (elapsed {el:.0f} s, ETA {eta:.0f} s)", flush=True)
+        batches = [todo[i:i + args.batch] for i in range(0, len(todo), args.batch)]
+        # The next batch's records are synthesised in a second thread while this batch is
+        # fitted (jax releases the GIL while it computes: two cores, both busy).
+        pool = ThreadPoolExecutor(max_workers=1)
+
+        def synth(batch):
+            t = time.perf_counter()
+            recs = batch_records(truth, args.design, batch)
+            return recs, (time.perf_counter() - t) / len(batch)
+
+        future = pool.submit(synth, batches[0])
+        j = -1
+        for b, batch in enumerate(batches):
+            recs, share = future.result()
+            if b + 1 < len(batches):
+                future = pool.submit(synth, batches[b + 1])
+            for k, rec in zip(batch, recs):
+                j += 1
+                row = run_replicate(truth, prior, args.design, k, frf_dir, rec, share)
+                row["host"] = platform.node()
+                append_line(path, row)
+                rows.append(row)
+                el = time.perf_counter() - t_start
+                eta = el / (j + 1) * (len(todo) - j - 1)
+                zs = " ".join(f"{p['z']:+.2f}" for p in row["params"].values())
+                print(f"[{j + 1}/{len(todo)}] replicate {k}: z = {zs}  covered "
+                      f"{sum(p['covers'] for p in row['params'].values())}/"
+                      f"{len(row['params'])}  conv {row['converged']}  synth "
+                      f"{row['synth_s']:.1f} s fit {row['fit_s']:.1f} s  (elapsed {el:.0f} s, "
+                      f"ETA {eta:.0f} s)", flush=True)
+        pool.shutdown()
+        print(f"{len(todo)} replicates in {time.perf_counter() - t_start:.0f} s", flush=True)
     rows = sorted((r for r in rows if r["replicate"] < n), key=lambda r: r["replicate"])
     if not rows:
         return 0

@@ -91,6 +91,19 @@ def test_receptance_equals_linear_frf_with_thermal_offsets(truth):
                                np.asarray(bsfs_jax.linear_frf(system, f)), rtol=1e-9)
 
 
+def test_synthesize_many_makes_the_records_synthesize_makes(truth):
+    kw = dict(duration_s=0.1, sample_rate_hz=10240.0, effects=idn.TestEffects(settle_s=0.05))
+    many = idn.synthesize_many(truth, 700.0, 100.0, [5, 9], **kw)
+    for seed, rec in zip((5, 9), many):
+        one = idn.synthesize(truth, 700.0, 100.0, seed=seed, **kw)
+        assert rec.meta == one.meta
+        scale = np.max(np.abs(one.acceleration))
+        # same random draws; the vmapped integration agrees to its tolerance
+        np.testing.assert_allclose(rec.acceleration, one.acceleration, atol=1e-6 * scale)
+        np.testing.assert_allclose(rec.force, one.force, atol=1e-9 * np.max(np.abs(one.force)))
+    assert not np.allclose(many[0].acceleration, many[1].acceleration)
+
+
 def test_shooting_matches_long_transient_at_3000n(truth):
     system = bsfs_jax.build_system(truth)
     force = jnp.array([3000.0 + 0j, 100 - 60j, 30 + 40j])
