@@ -10,9 +10,9 @@ compilation cache (`BSFS_CACHE_DIR` in a temporary folder), as on a fresh machin
    100 N), fitting the screw stiffness k_s and the nut damping c_n (every other parameter
    at data/truth.toml's value, so that errors against the truth mean something), maximum
    likelihood (no priors), one start.
-   - ours: `identification.Problem` + `identification.fit` (host-side MINPACK
-     Levenberg-Marquardt around one compiled residual-and-Jacobian function, JAX
-     forward-mode derivatives, linearised-FRF harmonic model); `wall_s` is Problem
+   - ours: `identification.Problem` + `identification.fit` (optimistix's dogleg inside one
+     compiled solve, JAX forward-mode derivatives, linearised-FRF harmonic model); `wall_s`
+     is Problem
      construction plus the fit, compilation included (median of the fresh processes);
      `warm_s` a second fit on the same Problem.
    - scipy: `scipy.optimize.least_squares(method="lm", xtol=ftol=1e-8)` with a 2-point
@@ -107,28 +107,31 @@ SPEEDUP_TARGET = 100.0
 KEYS = {
     "": ["schema", "date", "machine", "quick", "repeats", "fit_parameters", "truth", "ours",
          "scipy", "speedup", "speedup_warm", "targets", "end_to_end", "preload_loss", "chirp",
-         "demo", "ours_cached", "default_job"],
+         "demo", "ours_cached", "default_job", "plan_test"],
     "ours": ["wall_s", "wall_s_runs", "setup_s", "fit_s", "warm_s", "process_s", "iterations",
              "evaluations", "converged", "cost", "values", "relative_error", "method"],
     "scipy": ["wall_s", "extrapolated", "measured_wall_s", "nfev", "seconds_per_residual",
               "status", "message", "cost", "values", "relative_error", "method",
               "model_check_max_abs", "same_minimum_rel_diff", "integrator", "other_integrators"],
     "targets": ["speedup_target", "100x_vs_scipy_including_compilation",
-                "100x_with_cached_compilation", "100x_default_job_lower_bound"],
+                "100x_with_cached_compilation", "100x_default_job_lower_bound", "time"],
+    "plan_test": ["command", "cold", "warm", "recommended"],
     "ours_cached": ["wall_s", "setup_s", "fit_s", "process_s", "speedup"],
     "default_job": ["wall_s", "wall_s_runs", "parameters", "starts", "iterations_per_start",
                     "converged", "scipy_residuals_lower_bound", "scipy_wall_s_lower_bound",
                     "speedup_lower_bound"],
-    "end_to_end": ["command", "wall_s", "wall_s_runs", "exit_code", "converged", "iterations",
+    "end_to_end": ["command", "wall_s", "wall_s_runs", "cold", "warm", "exit_code", "converged",
+                   "iterations",
                    "fit_seconds", "compliance", "compliance_relative_std", "determined",
                    "parameters"],
-    "preload_loss": ["command", "wall_s", "wall_s_runs", "exit_code", "converged",
+    "preload_loss": ["command", "wall_s", "wall_s_runs", "cold", "warm", "exit_code",
+                     "converged",
                      "iterations", "determined", "parameters", "preloads",
                      "both_losses_flagged"],
     "chirp": ["record", "lines", "band_hz", "seconds_cold", "seconds_cold_runs",
               "fit_seconds_cold", "fit_seconds_warm", "process_s", "converged", "iterations",
               "determined", "parameters", "preloads"],
-    "demo": ["commands", "seconds", "exit_codes", "total_s"],
+    "demo": ["commands", "seconds", "compile_s", "exit_codes", "total_s"],
 }
 
 
@@ -361,41 +364,70 @@ CLI = "import sys; from bsfs_jax.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
 def run_cli(args, cache):
-    """`bsfs ARGS` in a fresh process with the compilation cache `cache`: (exit, seconds)."""
+    """`bsfs ARGS` in a fresh process with the compilation cache `cache`: (exit, seconds,
+    compile stats: compiles, compile_s, peak_rss_mb from jax's compile events)."""
     cmd = [sys.executable, "-c", CLI, *args, "--no-progress"] if args[0] == "identify" else \
         [sys.executable, "-c", CLI, *args]
+    env = _env(cache)
+    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
+        env["BSFS_COMPILE_STATS"] = fh.name
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(cache), cwd=ROOT)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
     wall = time.perf_counter() - t0
     if proc.returncode not in (0, 4):  # 4: identify ran but did not converge
         raise SystemExit(f"bsfs {' '.join(args)} failed (exit {proc.returncode}):\n"
                          f"{proc.stderr[-3000:]}")
-    return proc.returncode, wall
+    stats = json.loads(Path(env["BSFS_COMPILE_STATS"]).read_text())
+    os.unlink(env["BSFS_COMPILE_STATS"])
+    return proc.returncode, wall, stats
 
 
 def _median(xs):
     return float(statistics.median(xs))
 
 
-def identify_runs(args, repeats, tmp, tag):
-    """Repeated cold `bsfs identify` runs (fresh cache each); the last run's report."""
-    walls, codes = [], []
+def cold_warm_runs(args, repeats, tmp, tag):
+    """Each repeat: `bsfs ARGS` with an empty compilation cache (cold), then again with the
+    cache that run filled (warm). Medians of wall, compile and run (= wall - compile)
+    seconds, the compilations, and the last cold run's output folder."""
+    rows = []
     for k in range(repeats):
-        out = tmp / f"{tag}{k}"
-        code, wall = run_cli([*args, "--out", str(out)], tmp / f"cache_{tag}{k}")
-        walls.append(wall)
-        codes.append(code)
-        print(f"  bsfs {' '.join(args)}: {wall:.1f} s (exit {code})", flush=True)
+        cache = tmp / f"cache_{tag}{k}"
+        row = {}
+        for kind in ("cold", "warm"):
+            out = tmp / f"{tag}{k}_{kind}"
+            code, wall, st = run_cli([*args, "--out", str(out)], cache)
+            row[kind] = dict(wall_s=wall, compile_s=st["compile_s"],
+                             run_s=wall - st["compile_s"], compiles=st["compiles"],
+                             peak_rss_mb=st["peak_rss_mb"], exit_code=code)
+            print(f"  bsfs {' '.join(args)} ({kind}): {wall:.1f} s, compile "
+                  f"{st['compile_s']:.1f} s in {st['compiles']} programs (exit {code})",
+                  flush=True)
+        rows.append(row)
+    med = {kind: {key: _median([r[kind][key] for r in rows])
+                  for key in ("wall_s", "compile_s", "run_s", "compiles", "peak_rss_mb")}
+           for kind in ("cold", "warm")}
+    for kind in ("cold", "warm"):
+        med[kind]["wall_s_runs"] = [r[kind]["wall_s"] for r in rows]
+        med[kind]["exit_code"] = rows[-1][kind]["exit_code"]
+    return med, tmp / f"{tag}{repeats - 1}_cold"
+
+
+def identify_runs(args, repeats, tmp, tag):
+    """Repeated `bsfs identify` runs, cold and warm (`cold_warm_runs`); the last cold run's
+    report."""
+    med, out = cold_warm_runs(args, repeats, tmp, tag)
     report = json.loads((out / "report.json").read_text())
-    return report, walls, codes
+    return report, med
 
 
 def end_to_end(repeats, tmp):
-    report, walls, codes = identify_runs(["identify"], repeats, tmp, "paper")
+    report, med = identify_runs(["identify"], repeats, tmp, "paper")
     comp = report["series_compliance"]
     params = report["parameters"]
-    return dict(command="bsfs identify", wall_s=_median(walls), wall_s_runs=walls,
-                exit_code=codes[-1], converged=bool(report["fit"]["converged"]),
+    return dict(command="bsfs identify", wall_s=med["cold"]["wall_s"],
+                wall_s_runs=med["cold"]["wall_s_runs"], cold=med["cold"], warm=med["warm"],
+                exit_code=med["cold"]["exit_code"], converged=bool(report["fit"]["converged"]),
                 iterations=int(report["fit"]["iterations"]),
                 fit_seconds=float(report["fit"]["fit_seconds"]), compliance=comp,
                 compliance_relative_std=max(v["relative_std"] for v in comp.values()),
@@ -408,36 +440,50 @@ def preload_loss(repeats, tmp):
     import identification as idn
 
     args = ["identify", "--data", "preload-loss", "--fit", PRELOAD_FIT]
-    report, walls, codes = identify_runs(args, repeats, tmp, "preload")
+    report, med = identify_runs(args, repeats, tmp, "preload")
     worn = bsfs_jax.load_params(idn.DATA_DIR / "worn.toml")
     params = report["parameters"]
     preloads = {n: _preload_row(params[n], float(worn.get(params[n]["key"])))
                 for n in ("nut_preload", "bearing_preload")}
-    return dict(command="bsfs " + " ".join(args), wall_s=_median(walls), wall_s_runs=walls,
-                exit_code=codes[-1], converged=bool(report["fit"]["converged"]),
+    return dict(command="bsfs " + " ".join(args), wall_s=med["cold"]["wall_s"],
+                wall_s_runs=med["cold"]["wall_s_runs"], cold=med["cold"], warm=med["warm"],
+                exit_code=med["cold"]["exit_code"], converged=bool(report["fit"]["converged"]),
                 iterations=int(report["fit"]["iterations"]),
                 determined=int(sum(p["identified"] for p in params.values())),
                 parameters=len(params), preloads=preloads,
                 both_losses_flagged=all(p["significant_loss"] for p in preloads.values()))
 
 
+def plan_runs(repeats, tmp):
+    args = ["plan-test", "--fit", PRELOAD_FIT]
+    med, out = cold_warm_runs(args, repeats, tmp, "plan")
+    plan = json.loads((out / "plan.json").read_text()) if (out / "plan.json").exists() else {}
+    return dict(command="bsfs " + " ".join(args), cold=med["cold"], warm=med["warm"],
+                recommended=plan.get("recommended", {}).get("name") if isinstance(
+                    plan.get("recommended"), dict) else plan.get("recommended"))
+
+
 def demo(tmp):
-    """The identification commands of `make demo`, in order, one fresh cache."""
+    """The commands of `make demo`, in order, one fresh cache (after the install)."""
     out = tmp / "demo"
     commands = [
         ["identify", "--out", str(out / "identify")],
         ["plan-test", "--fit", PRELOAD_FIT, "--out", str(out / "plan")],
         ["identify", "--data", "preload-loss", "--fit", PRELOAD_FIT, "--compare",
          str(out / "identify"), "--out", str(out / "preload-loss")],
+        ["simulate", "--frequency", "500", "--force", "5000", "--verify", "--out",
+         str(out / "simulate")],
     ]
-    seconds, codes = [], []
+    seconds, codes, compile_s = [], [], []
     for args in commands:
-        code, wall = run_cli(args, tmp / "cache_demo")
+        code, wall, st = run_cli(args, tmp / "cache_demo")
         seconds.append(wall)
         codes.append(code)
+        compile_s.append(st["compile_s"])
         print(f"  demo: bsfs {args[0]}: {wall:.1f} s (exit {code})", flush=True)
     shown = [" ".join(["bsfs", *a]).replace(str(out), "out") for a in commands]
-    return dict(commands=shown, seconds=seconds, exit_codes=codes, total_s=sum(seconds))
+    return dict(commands=shown, seconds=seconds, compile_s=compile_s, exit_codes=codes,
+                total_s=sum(seconds))
 
 
 def cached(tmp):
@@ -488,10 +534,10 @@ def compare(repeats, quick):
         lambda r: (f"ours: {r['wall_s']:.2f} s cold (Problem {r['setup_s']:.2f} s + fit "
                    f"{r['fit_s']:.2f} s), {r['warm_s'] * 1e3:.1f} ms warm, "
                    f"{r['iterations']} iterations"))
-    ours["method"] = ("identification.Problem + fit: MINPACK Levenberg-Marquardt (scipy) on "
-                      "log-parameters around one compiled JAX residual-and-Jacobian "
-                      "(forward mode), linearised-FRF harmonic model; maximum likelihood, "
-                      "1 start")
+    ours["method"] = ("identification.Problem + fit: optimistix dogleg (truncated SVD "
+                      "Gauss-Newton point) on log-parameters inside one compiled solve, "
+                      "JAX forward-mode Jacobian, linearised-FRF harmonic model; maximum "
+                      "likelihood, 1 start")
     n_p = len(FIT)
     # scipy's 'lm' counts max_nfev in Jacobian evaluations with finite differences.
     sp, _ = run_part("scipy", 1 if quick else MAX_NFEV)
@@ -545,7 +591,7 @@ def markdown(r) -> str:
                      for k, v in e["compliance"].items())
     pre = pl["preloads"]
     lines = [
-        "# Identification (issue 11)",
+        "# Identification (issues 11 and 18)",
         "",
         f"Machine: {m['cpu']}, {m['cores']} cores; Python {m['python']}, jax {m['jax']}; "
         f"{m['date_utc']} UTC; load average {m['load_average_at_start'][0]:.1f} at start; "
@@ -622,12 +668,29 @@ def markdown(r) -> str:
         f"{fmt_pm(ch['preloads']['nut_preload'])} ({fmt_truth(ch['preloads']['nut_preload'])}), "
         f"bearing preload {fmt_pm(ch['preloads']['bearing_preload'])} "
         f"({fmt_truth(ch['preloads']['bearing_preload'])}) |",
-        f"| `make demo`'s identification commands (identify, plan-test, preload-loss with "
-        f"--compare; one fresh cache) | {dm['total_s']:.1f} | "
+        f"| `make demo`'s commands (identify, plan-test, preload-loss with --compare, "
+        f"simulate --verify; one fresh cache) | {dm['total_s']:.1f} | "
         + ", ".join(f"{c.split()[1]} {t:.1f} s" for c, t in zip(dm["commands"], dm["seconds"]))
         + " |",
         "",
+        "**Time to answer** (issue 18; fresh processes: cold = empty compilation cache, warm "
+        "= the cache the cold run filled; compile = XLA compile seconds from jax's compile "
+        "events, run = wall - compile, which includes imports, tracing and plotting):",
+        "",
+        "| command | cold wall | cold compile | cold run | programs | warm wall | warm compile "
+        "| warm run | peak memory |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
+    for node in (e, pl, r["plan_test"]):
+        c, w = node["cold"], node["warm"]
+        lines.append(f"| `{node['command']}` | {c['wall_s']:.1f} s | {c['compile_s']:.1f} s | "
+                     f"{c['run_s']:.1f} s | {c['compiles']:.0f} | {w['wall_s']:.1f} s | "
+                     f"{w['compile_s']:.1f} s | {w['run_s']:.1f} s | "
+                     f"{c['peak_rss_mb']:.0f} MB |")
+    lines += ["", "Targets (2-core CPU): " + "; ".join(
+        f"{k.replace('_', ' ')} <= {v['target_s']:g} s: {v['measured_s']:.1f} s, "
+        + ("met" if v["met"] else "**not met**") for k, v in r["targets"]["time"].items()) + ".",
+        ""]
     return "\n".join(lines)
 
 
@@ -677,7 +740,9 @@ def main(argv=None):
             lambda r: (f"chirp: {r['seconds_cold']:.1f} s cold (fit {r['fit_seconds_cold']:.2f}"
                        f" s), fit warm {r['fit_seconds_warm']:.3f} s"))
         chirp["record"] = CHIRP
-        print("make demo (identification commands)", flush=True)
+        print("end to end: plan-test", flush=True)
+        pt = plan_runs(repeats, tmp)
+        print("make demo", flush=True)
         dm = demo(tmp)
     truth = json.loads(json.dumps(_truth_values()))
     speedup = sp["wall_s"] / ours["wall_s"]
@@ -687,13 +752,21 @@ def main(argv=None):
         speedup=speedup, speedup_warm=sp["wall_s"] / ours["warm_s"],
         targets={"speedup_target": SPEEDUP_TARGET,
                  "100x_vs_scipy_including_compilation": bool(speedup >= SPEEDUP_TARGET)},
-        end_to_end=e2e, preload_loss=pl, chirp=chirp, demo=dm,
+        end_to_end=e2e, preload_loss=pl, plan_test=pt, chirp=chirp, demo=dm,
         ours_cached=dict(ours_cached, speedup=sp["wall_s"] / ours_cached["wall_s"]),
         default_job=dj)
     result["targets"]["100x_with_cached_compilation"] = bool(
         result["ours_cached"]["speedup"] >= SPEEDUP_TARGET)
     result["targets"]["100x_default_job_lower_bound"] = bool(
         dj["speedup_lower_bound"] >= SPEEDUP_TARGET)
+    result["targets"]["time"] = {
+        name: dict(measured_s=got, target_s=limit, met=bool(got <= limit))
+        for name, got, limit in (
+            ("identify_cold", e2e["cold"]["wall_s"], 10.0),
+            ("identify_warm", e2e["warm"]["wall_s"], 3.0),
+            ("preload_loss_cold", pl["cold"]["wall_s"], 20.0),
+            ("plan_test_cold", pt["cold"]["wall_s"], 15.0),
+            ("make_demo", dm["total_s"], 45.0))}
     missing = check_keys(result)
     assert not missing, missing
     name = "identify_quick" if args.quick else "identify"

@@ -7,6 +7,15 @@ at your entry point: `jax.config.update("jax_enable_x64", True)`).
 """
 
 import importlib.metadata
+import os
+
+# Equinox's runtime checks (diffrax's `saveat.ts` order, lineax, optimistix) default to a
+# host callback that raises; a program with a host callback is never written to jax's
+# persistent compilation cache, so every run recompiled every integration. Here a failed
+# check gives NaN instead (the package maps every solver's result to `RESULTS` and checks
+# it itself; nothing relies on those raises). Set EQX_ON_ERROR=raise before importing to
+# keep equinox's default. Read by equinox at its import: this must come first.
+os.environ.setdefault("EQX_ON_ERROR", "nan")
 
 from .machine import Modes as Modes
 from .machine import Trajectory as Trajectory

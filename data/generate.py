@@ -36,11 +36,19 @@ PLAN += [("stepped-sine", f"sine_{f:04d}hz_100n_{rpm}rpm", float(f), 100.0, floa
 WORN = [("preload-loss", f"sine_{f:04d}hz_100n", float(f), 100.0, 2000.0, 0.5)
         for f in (150, 400, 700, 1700, 2500)]
 CHIRP = ("preload-loss", "chirp_50-2500hz_5n", 5.0, 2000.0, 1.0, 50.0, 2500.0)
+# A drive with smaller preload losses (data/resonance.toml; first resonance 1128 Hz at
+# 2000 r/min) tested through its resonance (issue 24): stepped sines at 100 N from 150 Hz
+# up, two of them within -5 % / +3 % of the resonance, two sines at 3000 N and a chirp.
+RESONANCE = [("resonance", f"sine_{f:04d}hz_{n:.0f}n", float(f), float(n), 2000.0, 0.5)
+             for f, n in ((150, 100), (400, 100), (700, 100), (950, 100), (1070, 100),
+                          (1160, 100), (1400, 100), (2000, 100), (150, 3000), (300, 3000))]
+RESONANCE_CHIRP = ("resonance", "chirp_50-2500hz_5n", 5.0, 2000.0, 1.0, 50.0, 2500.0)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["paper-test", "stepped-sine", "preload-loss"])
+    ap.add_argument("--only", choices=["paper-test", "stepped-sine", "preload-loss",
+                                       "resonance"])
     args = ap.parse_args(argv)
     truth = bsfs_jax.load_params(HERE / "truth.toml")
     for seed, (group, stem, f, force, rpm, dur) in enumerate(PLAN):
@@ -51,6 +59,8 @@ def main(argv=None):
         rec.meta["source"] = "synthetic: data/generate.py from data/truth.toml"
         path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
         print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+    if args.only in (None, "resonance"):
+        _drive_set(HERE / "resonance.toml", RESONANCE, RESONANCE_CHIRP, 3000)
     if args.only not in (None, "preload-loss"):
         return
     worn = bsfs_jax.load_params(HERE / "worn.toml")
@@ -66,6 +76,26 @@ def main(argv=None):
                      sample_rate_hz=FS, seed=2100, excitation="chirp", start_hz=start,
                      stop_hz=stop)
     rec.meta["source"] = "synthetic: data/generate.py from data/worn.toml"
+    path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
+    print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+
+
+def _drive_set(truth_file, sines, chirp, seed0):
+    """One drive's records: the sines (seeds seed0 + k) and the chirp (seed0 + 100)."""
+    truth = bsfs_jax.load_params(truth_file)
+    source = f"synthetic: data/generate.py from data/{truth_file.name}"
+    for seed, (group, stem, f, force, rpm, dur) in enumerate(sines):
+        (HERE / group).mkdir(exist_ok=True)
+        rec = synthesize(truth.replace("thermal.speed_rpm", rpm), f, force, duration_s=dur,
+                         sample_rate_hz=FS, seed=seed0 + seed)
+        rec.meta["source"] = source
+        path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
+        print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+    group, stem, force, rpm, dur, start, stop = chirp
+    rec = synthesize(truth.replace("thermal.speed_rpm", rpm), None, force, duration_s=dur,
+                     sample_rate_hz=FS, seed=seed0 + 100, excitation="chirp", start_hz=start,
+                     stop_hz=stop)
+    rec.meta["source"] = source
     path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
     print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
 

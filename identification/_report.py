@@ -20,7 +20,8 @@ DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 
 def bundled_records(name: str = "paper-test") -> list[Path]:
-    """Paths of a bundled synthetic data set ("paper-test", "stepped-sine", "preload-loss")."""
+    """Paths of a bundled synthetic data set ("paper-test", "stepped-sine", "preload-loss",
+    "resonance")."""
     folder = DATA_DIR / name
     files = sorted(p for p in folder.glob("*") if p.suffix in (".csv", ".uff", ".unv"))
     if not files:

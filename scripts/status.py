@@ -424,6 +424,29 @@ def _identify(src: Sources, v: Values):
     # `bsfs identify` on the paper test.
     e2e = lambda: d["end_to_end"]  # noqa: E731
     put("e2e_wall_s", lambda: sig(e2e()["wall_s"]))
+
+    def cold_warm(node):
+        def fn():
+            c, w = node()["cold"], node()["warm"]
+            return (f"{sig(c['wall_s'])} s cold (compile {sig(c['compile_s'])} s in "
+                    f"{integer(c['compiles'])} programs), {sig(w['wall_s'])} s warm "
+                    f"(compile {sig(w['compile_s'])} s)")
+        return fn
+
+    put("e2e_cold_warm", cold_warm(e2e))
+    put("preload_cold_warm", cold_warm(lambda: d["preload_loss"]))
+    put("plan_cold_warm", cold_warm(lambda: d["plan_test"]))
+
+    def time_targets():
+        t = d["targets"]["time"]
+        names = dict(identify_cold="identify ≤ {} s cold", identify_warm="identify ≤ {} s warm",
+                     preload_loss_cold="preload-loss ≤ {} s cold",
+                     plan_test_cold="plan-test ≤ {} s cold", make_demo="make demo ≤ {} s")
+        return "; ".join(
+            f"{names[k].format(sig(t[k]['target_s']))}: {sig(t[k]['measured_s'])} s, "
+            f"{verdict(bool(t[k]['met']))}" for k in names)
+
+    put("time_targets", time_targets)
     put("e2e_convergence", convergence(e2e))
     put("e2e_determined", determined(e2e))
 

@@ -32,6 +32,33 @@ def setup_jax() -> None:
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     except OSError:
         pass  # a read-only home: run without the cache
+    if os.environ.get("BSFS_COMPILE_STATS"):
+        _record_compiles(os.environ["BSFS_COMPILE_STATS"])
+
+
+def _record_compiles(path: str) -> None:
+    """For the benchmarks: count XLA compilations and their seconds (jax's compile events)
+    and write them, with the peak memory, to `path` (JSON) when the process exits."""
+    import atexit
+    import json
+    import resource
+
+    import jax
+
+    stats = {"compiles": 0, "compile_s": 0.0}
+
+    def on_event(event, seconds, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            stats["compiles"] += 1
+            stats["compile_s"] += seconds
+
+    def write():
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(dict(stats, peak_rss_mb=peak), fh)
+
+    jax.monitoring.register_event_duration_secs_listener(on_event)
+    atexit.register(write)
 
 
 def add_params_args(parser) -> None:

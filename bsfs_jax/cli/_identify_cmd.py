@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("records", nargs="*", metavar="RECORD",
                    help="record files (.csv with '# key = value' header, UFF58 .uff: time "
                    "records or FRFs)")
-    p.add_argument("--data", choices=["paper-test", "stepped-sine", "preload-loss"],
+    p.add_argument("--data", choices=["paper-test", "stepped-sine", "preload-loss", "resonance"],
                    default="paper-test",
                    help="bundled data set used when no RECORD is given (paper-test)")
     add_params_args(p)
