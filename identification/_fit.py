@@ -49,6 +49,9 @@ class FitResult:
     # (it differed; the fit was repeated with the choice at the estimate, then confirmed),
     # "unsettled" (it still changed after MAX_REFITS repeats: the fit is then not converged).
     model_choice: str = "prior"
+    # A staged fit's first stage (`staged_starts`): what it fitted, its starts, how many
+    # reached its best cost; None where the fit was not staged.
+    stage1: dict | None = None
 
     @property
     def convergence_text(self) -> str:
@@ -94,14 +97,53 @@ def full_used_mask(problem: Problem) -> np.ndarray:
 
 
 def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
-    """Start 0 is the prior; the others are drawn from the prior (or +-`spread` without)."""
-    rng = np.random.default_rng(seed)
+    """Start 0 is the prior; the others spread quasi-randomly (a scrambled Halton sequence,
+    seeded) over the prior's central 95 % in every fitted coordinate: the normal quantiles
+    of 0.025 + 0.95 u times each prior sigma (+-`spread`-sigma quantiles without priors)."""
+    from scipy.stats import norm, qmc
+
     sigma = (problem.prior_sigma if problem.prior_sigma is not None else
              np.where(problem.is_log, spread, 0.3))
     out = [np.zeros(problem.n_params)]
-    for _ in range(1, max(1, starts)):
-        out.append(rng.normal(0.0, 1.0, problem.n_params) * sigma)
+    n = max(1, starts) - 1
+    if n:
+        u = qmc.Halton(d=problem.n_params, scramble=True, seed=seed).random(n)
+        out += list(norm.ppf(0.025 + 0.95 * u) * sigma)
     return out
+
+
+STAGE1_STARTS = 24  # quasi-random starts of a staged fit's first stage
+
+
+def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOptions):
+    """Starts for a fit with periodic-orbit records: `STAGE1_STARTS` (or `starts`, if more)
+    quasi-random starts carried to the optimum of the records the cheaper models explain
+    (`Problem.without_orbit_records`; every record linearised where none is left), as one
+    batched solve; the `starts` lowest-cost optima, the most distinct first. Returns
+    (points, summary dict for the report)."""
+    first = problem.without_orbit_records()
+    stage = "records on the linear and first-order models"
+    if first is None:
+        first, stage = problem.linearised(), "every record on the linearised model"
+    pts = start_points(first, max(starts, STAGE1_STARTS), seed)
+    out = solve(np.stack(pts), True, first.fit_data, first.structure,
+                dataclasses.replace(options, step_tol=0.1))
+    cost = np.where(np.isfinite(out["cost"]), out["cost"], np.inf)
+    order = np.argsort(cost)
+    best = cost[order[0]]
+    same = np.abs(cost - best) <= 1e-3 * max(1.0, best)
+    # Distinct optima first (scaled distance > 0.05 from every chosen one), then the rest.
+    chosen = []
+    for i in order:
+        if all(np.max(np.abs(out["theta"][i] - out["theta"][j])) > 0.05 for j in chosen):
+            chosen.append(i)
+    chosen += [i for i in order if i not in chosen]
+    chosen = chosen[:max(1, starts)]
+    summary = dict(stage=stage, records=len(first.data), starts=len(pts),
+                   reached_best=int(same.sum()),
+                   distinct_optima=len({tuple(np.round(out["theta"][i], 2)) for i in order
+                                        if np.isfinite(cost[i])}))
+    return [out["theta"][i] for i in chosen], summary
 
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
@@ -110,8 +152,9 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     """Fit from several starts; the lowest cost wins and every start is reported.
 
     `theta0` replaces the prior as start 0 (e.g. a previous optimum). `warm_start`: where
-    records use the periodic-orbit model, each start is first carried to the optimum of the
-    linearised problem (cheap), and the full fit starts from there. `check_models`: where the
+    records use the periodic-orbit model, the fit is staged (`staged_starts`): tens of
+    quasi-random starts fit the records the cheaper models explain, and the full fit starts
+    from the best of their optima. `check_models`: where the
     problem chose its models itself (model "auto"), the choice is made again at the estimate
     (`Problem.rechosen`); if it differs, the fit is repeated with it from the starts' optima,
     up to `MAX_REFITS` times. `max_steps` bounds the optimiser's accepted steps (2 x
@@ -122,11 +165,12 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     if theta0 is not None:
         points[0] = np.asarray(theta0, float)
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
+    stage1 = None
     if warm_start and "nonlinear" in problem.models:
-        lin = problem.linearised()
-        warm = solve(np.stack(points), True, lin.fit_data, lin.structure,
-                     dataclasses.replace(options, step_tol=0.1))
-        points = list(warm["theta"])
+        # A staged fit: the cheap records first, from many starts (module docstring).
+        points, stage1 = staged_starts(problem, starts, seed, options)
+        if theta0 is not None:
+            points[0] = np.asarray(theta0, float)
     result = _fit_from(problem, points, options)
     if check_models and problem.chooses_models:
         for attempt in range(MAX_REFITS + 1):
@@ -141,6 +185,7 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
                                options)
     result.seconds = time.perf_counter() - t0
+    result.stage1 = stage1
     return result
 
 

@@ -71,6 +71,17 @@ def _left_out_lines(res) -> list[str]:
     return out
 
 
+def _stage_lines(fr) -> list[str]:
+    st = getattr(fr, "stage1", None)
+    if not st:
+        return []
+    return [f"Staged fit: first {st['records']} record(s) ({st['stage']}) from "
+            f"{st['starts']} quasi-random starts over the prior's 95 % region: "
+            f"{st['reached_best']} reached the best cost ({st['distinct_optima']} distinct "
+            f"optim{'um' if st['distinct_optima'] == 1 else 'a'}); the full fit started from "
+            "the best of them."]
+
+
 def summary_text(res) -> str:
     pb, fr, u = res.problem, res.fit, res.uncertainty
     synth = any(str((d.meta if is_frf(d) else d.record.meta).get("synthetic", "")).lower()
@@ -85,6 +96,7 @@ def summary_text(res) -> str:
              + ("maximum a posteriori with priors (sigma in the table)" if pb.priors is not None
                 else "maximum likelihood (no priors)") + f"; {res.seconds:.1f} s.",
              *_left_out_lines(res),
+             *_stage_lines(fr),
              f"Fit {fr.convergence_text}; {fr.steps} iterations" + _CHOICE.get(fr.model_choice,
                                                                                "") + ".",
              f"Noise: {u.noise['text']}.", ""]

@@ -255,6 +255,22 @@ def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_pr
         assert c - 2 * res.cost == pytest.approx(3.84, abs=0.05)
 
 
+def test_starts_spread_quasi_randomly_over_the_prior_95_region(paper_problem):
+    from identification._fit import start_points
+
+    pts = np.asarray(start_points(paper_problem, 33, 0))
+    assert pts.shape == (33, paper_problem.n_params) and np.all(pts[0] == 0.0)  # the prior
+    box = 1.959963984540054 * paper_problem.prior_sigma
+    assert np.all(np.abs(pts[1:]) <= box * (1 + 1e-12))
+    # low discrepancy: every coordinate's 32 points fill its four prior quartiles evenly
+    q = np.stack([np.searchsorted([-0.6745 * s, 0.0, 0.6745 * s], x)
+                  for x, s in zip(pts[1:].T, paper_problem.prior_sigma)])
+    for row in q:
+        assert np.all(np.abs(np.bincount(row, minlength=4) - 8) <= 3), row
+    np.testing.assert_array_equal(pts, np.asarray(start_points(paper_problem, 33, 0)))
+    assert not np.allclose(pts, np.asarray(start_points(paper_problem, 33, 1)))
+
+
 def test_maximum_likelihood_names_the_undetermined_without_an_interval(paper_problem):
     pb = idn.Problem(paper_problem.data, bsfs_jax.preset(), priors=None)
     res = idn.fit(pb, starts=1)
