@@ -457,10 +457,9 @@ def preload_loss(repeats, tmp):
 def plan_runs(repeats, tmp):
     args = ["plan-test", "--fit", PRELOAD_FIT]
     med, out = cold_warm_runs(args, repeats, tmp, "plan")
-    plan = json.loads((out / "plan.json").read_text()) if (out / "plan.json").exists() else {}
+    plan = json.loads((out / "plan.json").read_text())
     return dict(command="bsfs " + " ".join(args), cold=med["cold"], warm=med["warm"],
-                recommended=plan.get("recommended", {}).get("name") if isinstance(
-                    plan.get("recommended"), dict) else plan.get("recommended"))
+                recommended=plan["recommended"])
 
 
 def demo(tmp):

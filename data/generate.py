@@ -63,21 +63,7 @@ def main(argv=None):
         _drive_set(HERE / "resonance.toml", RESONANCE, RESONANCE_CHIRP, 3000)
     if args.only not in (None, "preload-loss"):
         return
-    worn = bsfs_jax.load_params(HERE / "worn.toml")
-    (HERE / "preload-loss").mkdir(exist_ok=True)
-    for seed, (group, stem, f, force, rpm, dur) in enumerate(WORN):
-        rec = synthesize(worn.replace("thermal.speed_rpm", rpm), f, force, duration_s=dur,
-                         sample_rate_hz=FS, seed=2000 + seed)
-        rec.meta["source"] = "synthetic: data/generate.py from data/worn.toml"
-        path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
-        print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
-    group, stem, force, rpm, dur, start, stop = CHIRP
-    rec = synthesize(worn.replace("thermal.speed_rpm", rpm), None, force, duration_s=dur,
-                     sample_rate_hz=FS, seed=2100, excitation="chirp", start_hz=start,
-                     stop_hz=stop)
-    rec.meta["source"] = "synthetic: data/generate.py from data/worn.toml"
-    path = write_record_csv(HERE / group / f"{stem}.csv", rec, digits=5)
-    print(f"{path.relative_to(HERE)}: {rec.summary()}", flush=True)
+    _drive_set(HERE / "worn.toml", WORN, CHIRP, 2000)
 
 
 def _drive_set(truth_file, sines, chirp, seed0):

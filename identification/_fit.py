@@ -133,16 +133,13 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
     best = cost[order[0]]
     same = np.abs(cost - best) <= 1e-3 * max(1.0, best)
     # Distinct optima first (scaled distance > 0.05 from every chosen one), then the rest.
-    chosen = []
-    for i in order:
-        if all(np.max(np.abs(out["theta"][i] - out["theta"][j])) > 0.05 for j in chosen):
-            chosen.append(i)
-    chosen += [i for i in order if i not in chosen]
-    chosen = chosen[:max(1, starts)]
+    distinct = []
+    for i in order[np.isfinite(cost[order])]:
+        if all(np.max(np.abs(out["theta"][i] - out["theta"][j])) > 0.05 for j in distinct):
+            distinct.append(i)
+    chosen = (distinct + [i for i in order if i not in distinct])[:max(1, starts)]
     summary = dict(stage=stage, records=len(first.data), starts=len(pts),
-                   reached_best=int(same.sum()),
-                   distinct_optima=len({tuple(np.round(out["theta"][i], 2)) for i in order
-                                        if np.isfinite(cost[i])}))
+                   reached_best=int(same.sum()), distinct_optima=len(distinct))
     return [out["theta"][i] for i in chosen], summary
 
 
@@ -161,16 +158,15 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     `max_steps` steps with the rejected ones); `method` its descent (`_solve.make_solver`).
     """
     t0 = time.perf_counter()
-    points = start_points(problem, starts, seed)
-    if theta0 is not None:
-        points[0] = np.asarray(theta0, float)
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
     stage1 = None
     if warm_start and "nonlinear" in problem.models:
-        # A staged fit: the cheap records first, from many starts (module docstring).
+        # A staged fit: the cheap records first, from many starts (`staged_starts`).
         points, stage1 = staged_starts(problem, starts, seed, options)
-        if theta0 is not None:
-            points[0] = np.asarray(theta0, float)
+    else:
+        points = start_points(problem, starts, seed)
+    if theta0 is not None:
+        points[0] = np.asarray(theta0, float)
     result = _fit_from(problem, points, options)
     if check_models and problem.chooses_models:
         for attempt in range(MAX_REFITS + 1):

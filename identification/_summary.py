@@ -72,7 +72,7 @@ def _left_out_lines(res) -> list[str]:
 
 
 def _stage_lines(fr) -> list[str]:
-    st = getattr(fr, "stage1", None)
+    st = fr.stage1
     if not st:
         return []
     return [f"Staged fit: first {st['records']} record(s) ({st['stage']}) from "

@@ -188,7 +188,9 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
                     start_hz: float | None = None, stop_hz: float | None = None) -> list:
     """`synthesize` for several seeds at once: the same test repeated (new phases, noise and
     drift per seed), the simulations as lanes of one vmapped integration. Record k is the
-    one `synthesize(..., seed=seeds[k])` makes (the same random draws, in the same order)."""
+    one `synthesize(..., seed=seeds[k])` makes: the same random draws in the same order, and
+    the same response to the integration tolerance (vmapped lanes take their own steps;
+    tests/test_identification.py checks 1e-6 of the peak)."""
     if excitation not in ("sine", "chirp", "random"):
         raise ValueError(f"excitation must be 'sine', 'chirp' or 'random', got {excitation!r}")
     rngs = [np.random.default_rng(s) for s in seeds]

@@ -53,10 +53,12 @@ def _replicate(data, seed):
 
 @pytest.fixture
 def no_persistent_cache():
-    """A persistent-cache hit (CI shares one cache between test files) is not a compile
-    event: count real compilations only."""
+    """A cache hit is not a compile event: start from empty in-process caches (another test
+    in this process may have compiled the same layout) and without the persistent cache
+    (CI shares one between test files), so that real compilations are counted."""
     was = jax.config.jax_enable_compilation_cache
     jax.config.update("jax_enable_compilation_cache", False)
+    jax.clear_caches()
     yield
     jax.config.update("jax_enable_compilation_cache", was)
 
