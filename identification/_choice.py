@@ -3,7 +3,7 @@
 A sine record gets the linearised FRF where its predicted error (`linearisation_error`, the
 first harmonic-balance step from the linear steady state) is below `MODEL_ERROR` standard
 errors in every usable harmonic; else the first-order model (linear + that step) where one
-more step changes it by less than `MODEL_ERROR`; else the periodic orbit (shooting). A
+more step changes it by less than `MODEL_ERROR`; else the periodic orbit (harmonic balance). A
 chirp's FRF lines whose predicted linear-model error exceeds `MODEL_ERROR` are left out
 (the FRF of a sweep has no steady-state nonlinear model). `Problem` makes the choice at the
 prior and `fit` makes it again at the estimate, where decisions within a factor 2 of the

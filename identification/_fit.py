@@ -54,20 +54,32 @@ class FitResult:
     stage1: dict | None = None
 
     @property
+    def starts_agreeing(self) -> int:
+        """Starts that reached the lowest cost, counted in quasi-random starts (a staged
+        fit's full-fit start stands for the first-stage starts of its basin)."""
+        return sum(s.get("starts_in_basin", 1) for s in self.starts if s["same_minimum"])
+
+    @property
+    def starts_total(self) -> int:
+        return sum(s.get("starts_in_basin", 1) for s in self.starts)
+
+    @property
     def convergence_text(self) -> str:
-        agree = sum(s["same_minimum"] for s in self.starts)
+        agree, total = self.starts_agreeing, self.starts_total
+        via = (f" (through {sum(s['same_minimum'] for s in self.starts)} of "
+               f"{len(self.starts)} first-stage optima)" if self.stage1 else "")
         if self.converged:
             return (f"converged: the remaining Gauss-Newton step is {self.remaining_step:.1e} "
-                    f"of its standard error; {agree}/{len(self.starts)} starts reached the "
-                    "same minimum")
+                    f"of its standard error; {agree}/{total} starts reached the same "
+                    f"minimum{via}")
         why = []
         if not self.remaining_step < STEP_TOL and not self.optimizer_converged:
             why.append(f"the optimiser stopped at its step limit ({self.steps} iterations)")
         if not self.remaining_step < STEP_TOL:
             why.append(f"the remaining Gauss-Newton step is {self.remaining_step:.2g} of its "
                        f"standard error (needs < {STEP_TOL:g})")
-        if len(self.starts) > 1 and agree < 2:
-            why.append(f"only {agree} of {len(self.starts)} starts reached the lowest cost")
+        if total > 1 and agree < 2:
+            why.append(f"only {agree} of {total} starts reached the lowest cost{via}")
         if self.model_choice == "unsettled":
             why.append("the choice of model per record still changed at the estimate after a "
                        "repeated fit (a record near the limit of the linear model; choose one "
@@ -113,14 +125,18 @@ def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
 
 
 STAGE1_STARTS = 24  # quasi-random starts of a staged fit's first stage
+FULL_STARTS = 8  # most distinct first-stage optima the full fit starts from
+_DISTINCT = 0.05  # scaled distance beyond which two optima are distinct
 
 
 def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOptions):
     """Starts for a fit with periodic-orbit records: `STAGE1_STARTS` (or `starts`, if more)
     quasi-random starts carried to the optimum of the records the cheaper models explain
     (`Problem.without_orbit_records`; every record linearised where none is left), as one
-    batched solve; the `starts` lowest-cost optima, the most distinct first. Returns
-    (points, summary dict for the report)."""
+    batched solve. The full fit starts from each distinct optimum (lowest cost first, at
+    most max(`starts`, `FULL_STARTS`)); each carries the number of quasi-random starts that
+    reached it (its basin), so agreement among starts is counted in the original starts.
+    Returns (points, basin counts, summary dict for the report)."""
     first = problem.without_orbit_records()
     stage = "records on the linear and first-order models"
     if first is None:
@@ -132,15 +148,24 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
     order = np.argsort(cost)
     best = cost[order[0]]
     same = np.abs(cost - best) <= 1e-3 * max(1.0, best)
-    # Distinct optima first (scaled distance > 0.05 from every chosen one), then the rest.
-    distinct = []
+    # Distinct optima (scaled distance > _DISTINCT from every chosen one), each with the
+    # starts that reached it.
+    distinct, basin = [], []
     for i in order[np.isfinite(cost[order])]:
-        if all(np.max(np.abs(out["theta"][i] - out["theta"][j])) > 0.05 for j in distinct):
+        near = [k for k, j in enumerate(distinct)
+                if np.max(np.abs(out["theta"][i] - out["theta"][j])) <= _DISTINCT]
+        if near:
+            basin[near[0]] += 1
+        else:
             distinct.append(i)
-    chosen = (distinct + [i for i in order if i not in distinct])[:max(1, starts)]
+            basin.append(1)
+    if not distinct:  # every start failed: the prior
+        distinct, basin = [order[0]], [1]
+    keep = max(1, starts, FULL_STARTS)
     summary = dict(stage=stage, records=len(first.data), starts=len(pts),
-                   reached_best=int(same.sum()), distinct_optima=len(distinct))
-    return [out["theta"][i] for i in chosen], summary
+                   reached_best=int(same.sum()), distinct_optima=len(distinct),
+                   full_fit_starts=min(keep, len(distinct)))
+    return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary
 
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
@@ -159,15 +184,15 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     """
     t0 = time.perf_counter()
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
-    stage1 = None
+    stage1, weights = None, None
     if warm_start and "nonlinear" in problem.models:
         # A staged fit: the cheap records first, from many starts (`staged_starts`).
-        points, stage1 = staged_starts(problem, starts, seed, options)
+        points, weights, stage1 = staged_starts(problem, starts, seed, options)
     else:
         points = start_points(problem, starts, seed)
     if theta0 is not None:
         points[0] = np.asarray(theta0, float)
-    result = _fit_from(problem, points, options)
+    result = _fit_from(problem, points, options, weights)
     if check_models and problem.chooses_models:
         for attempt in range(MAX_REFITS + 1):
             again = result.problem.rechosen(result.theta)
@@ -179,13 +204,15 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
                 result.converged = False
                 break
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
-                               options)
+                               options, weights)
     result.seconds = time.perf_counter() - t0
     result.stage1 = stage1
     return result
 
 
-def _fit_from(problem: Problem, points, options: SolveOptions) -> FitResult:
+def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> FitResult:
+    """Fit from `points`; `weights`: the quasi-random starts each point stands for (a staged
+    fit's basin counts; 1 each by default)."""
     t0 = time.perf_counter()
     rows = full_used_mask(problem)
     out = solve(np.stack(points), True, problem.fit_data, problem.structure, options)
@@ -200,7 +227,8 @@ def _fit_from(problem: Problem, points, options: SolveOptions) -> FitResult:
                          cost=float(out["cost"][k]), steps=int(out["steps"][k]),
                          evaluations=int(out["steps"][k]),
                          optimizer_converged=bool(step < options.step_tol),
-                         stop=out["stop"][k]))
+                         stop=out["stop"][k],
+                         starts_in_basin=1 if weights is None else int(weights[k])))
     best = min(runs, key=lambda d: d["cost"] if np.isfinite(d["cost"]) else np.inf)
     for run in runs:
         run["same_minimum"] = bool(abs(run["cost"] - best["cost"])
@@ -209,9 +237,10 @@ def _fit_from(problem: Problem, points, options: SolveOptions) -> FitResult:
     for run in runs:
         run["theta"] = np.asarray(run["theta"]).tolist()
         del run["residual"], run["jacobian"], run["step"]
-    agree = sum(run["same_minimum"] for run in runs)
+    agree = sum(run["starts_in_basin"] for run in runs if run["same_minimum"])
+    total = sum(run["starts_in_basin"] for run in runs)
     # The evidence at the returned point decides, not the optimiser's own stopping rule.
-    converged = bool(step < STEP_TOL and (len(runs) == 1 or agree >= 2))
+    converged = bool(step < STEP_TOL and (total == 1 or agree >= 2))
     return FitResult(problem, np.asarray(theta), np.asarray(problem.values(np.asarray(theta))),
                      float(best["cost"]), r, j, runs, converged,
                      bool(best["optimizer_converged"]), step, best["steps"],

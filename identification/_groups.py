@@ -45,6 +45,9 @@ class Structure:
     # Whether the first-order correction is in the program: where the models are chosen by
     # the predicted-error rule (any iteration may choose it) or forced to "first-order".
     first_order: bool = True
+    # Whether any periodic-orbit record carries a stepped sine's sweep direction (then the
+    # swept-orbit start is in the program, see `_orbit_model.nonlinear_acceleration`).
+    sweeps: bool = False
 
 
 class GroupData(eqx.Module):
@@ -55,8 +58,9 @@ class GroupData(eqx.Module):
     sine_acc: jax.Array  # (R, H) complex measured acceleration harmonics [m/s^2]
     sine_scale: jax.Array  # (R, H, 2) std of (Re, Im); inf: not used (padding, filter band)
     sine_first: jax.Array  # (R,) bool: first-order harmonic-balance correction added
-    sine_orbit: jax.Array  # (R,) bool: periodic-orbit (shooting) model
+    sine_orbit: jax.Array  # (R,) bool: periodic-orbit (harmonic balance) model
     orbit_index: jax.Array  # (S,) int: the records whose orbit is computed (padded)
+    sine_sweep: jax.Array  # (R,) +1 / -1: a stepped sine swept up / down; 0: not given
     frf_freq: jax.Array  # (L,) FRF lines [Hz]
     frf_acc: jax.Array  # (L,) complex accelerance [m/s^2 per N]
     frf_scale: jax.Array  # (L, 2)
@@ -71,6 +75,13 @@ class FitData(eqx.Module):
     inv_sigma: jax.Array  # (p,) 1 / prior std of theta; 0: no prior
     info_floor: jax.Array  # () singular values below this carry no information (ML: 1)
     groups: tuple
+
+
+def sweep_direction(d) -> float:
+    """+1 / -1 for a sine record whose header says `sweep = up` / `down` (a stepped sine's
+    direction), else 0."""
+    meta = getattr(getattr(d, "record", None), "meta", None) or {}
+    return {"up": 1.0, "down": -1.0}.get(str(meta.get("sweep", "")).strip().lower(), 0.0)
 
 
 def _sine_arrays(problem, idx, h, rows):
@@ -149,13 +160,16 @@ def build_data(problem, is_frf):
         sf, sF, sA, sS = _sine_arrays(problem, sine_idx, h, rows)
         first = np.zeros(rows, bool)
         nl = np.zeros(rows, bool)
+        sweep = np.zeros(rows)
         for j, i in enumerate(sine_idx):
             first[j] = models[i] == "first-order"
             nl[j] = models[i] == "nonlinear"
+            sweep[j] = sweep_direction(data[i])
         ff, fA, fS = _frf_arrays(problem, frf_idx, lines)
         groups.append(GroupData(jnp.asarray(sf), jnp.asarray(sF), jnp.asarray(sA),
                                 jnp.asarray(sS), jnp.asarray(first), jnp.asarray(nl),
-                                jnp.asarray(orbit_index), jnp.asarray(ff), jnp.asarray(fA),
+                                jnp.asarray(orbit_index), jnp.asarray(sweep),
+                                jnp.asarray(ff), jnp.asarray(fA),
                                 jnp.asarray(fS)))
         for j, i in enumerate(sine_idx):
             layout[i] = (gi, 0, np.concatenate([pos + j * h + np.arange(h),
@@ -178,7 +192,9 @@ def build_data(problem, is_frf):
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),
                           tuple(bool(x) for x in problem.is_log), len(problem.speeds),
-                          problem.may_use_first_order)
+                          problem.may_use_first_order,
+                          any(sweep_direction(d) and m == "nonlinear"
+                              for d, m in zip(data, models)))
     return fit_data, structure, layout
 
 

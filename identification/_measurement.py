@@ -20,13 +20,10 @@ and its output is the worktable acceleration x_n''. Two steady-state models:
   nonlinear steady state to about 1e-5 relative (measured, see the report), far below the
   noise of the coefficients (about 2e-4 relative for 2 s at 35 dB).
 - `nonlinear`: the periodic orbit of the full Eq. 31 under the measured force harmonics,
-  from the package's orbit engine (shooting, started from the linear steady state), one
-  period sampled at 64 points and Fourier analysed.
-  Needed near the resonance and when the force reaches the joint nonlinearity (the
-  3000 N records): at 1150 Hz / 100 N the linear model is 3 % off, at 3000 N / 150 Hz 2 %.
-  It agrees with simulate-and-discard-transient (`nonlinear_acceleration_transient`; tested)
-  whereas discarding the transient near the lightly damped resonance (zeta ~ 1 %, decay
-  time ~12 ms) needs >100 periods.
+  by harmonic balance from the record's own measured state (`_orbit_model.py`: the model,
+  its accuracy, and which branch near a fold). Needed near the resonance and when the force
+  reaches the joint nonlinearity (the 3000 N records): at 1150 Hz / 100 N the linear model
+  is 3 % off, at 3000 N / 150 Hz 2 %.
 
 - `first-order`: the linear model plus one chord step of harmonic balance
   (`linearisation_error`): the weakly nonlinear case at the cost of 64 force evaluations
@@ -43,15 +40,11 @@ from __future__ import annotations
 
 import dataclasses
 
-import diffrax as dfx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-import bsfs_jax
-from bsfs_jax.machine import BSFS_SCALE, Horizon, simulate_core
-from bsfs_jax.model import accelerations, restoring_forces
-from bsfs_jax.solvers import ImplicitForward, Shooting, periodic_orbit
+from bsfs_jax.model import restoring_forces
 
 from ._records import Record
 
@@ -264,73 +257,6 @@ def chord_corrections(system, frequency_hz, force_coeffs, steps: int,
         x = x - jnp.linalg.solve(dyn, residual(x)[..., None])[..., 0]
         out.append(-(w**2) * (x - x_lin)[:, 2])
     return jnp.stack(out)
-
-
-def _forcing(frequency_hz, force_coeffs):
-    return bsfs_jax.HarmonicForcing(frequency_hz, jnp.real(force_coeffs),
-                                    -jnp.imag(force_coeffs))
-
-
-def linear_initial_state(system, frequency_hz, force_coeffs):
-    """State at t = 0 of the linear steady-state response (start of the nonlinear solve)."""
-    k = jnp.arange(1, force_coeffs.shape[-1] + 1)
-    fk = frequency_hz * k
-    h = receptance(system, fk)  # (H, 3)
-    x = h * force_coeffs[:, None]
-    w = (2.0 * jnp.pi * fk)[:, None]
-    return jnp.concatenate([jnp.sum(jnp.real(x), axis=0), jnp.sum(jnp.real(1j * w * x), axis=0)])
-
-
-#: ODE settings of the nonlinear model's shooting (scaled variables: atol relative to
-#: 1 um and 1 cm/s): far below the records' noise, cheaper than the engine's default.
-NONLINEAR_SETTINGS = bsfs_jax.SolverSettings(rtol=1e-9, atol=1e-11, solver="tsit5")
-
-
-def nonlinear_acceleration(system, frequency_hz, force_coeffs):
-    """(acceleration harmonics (H,), ok flag) of the nonlinear periodic steady state.
-
-    The periodic orbit under the measured force harmonics comes from the orbit engine
-    (`bsfs_jax.solvers.periodic_orbit`, single shooting, started from the linear steady
-    state); one period is sampled at 64 points and Fourier analysed. Shooting rather than
-    harmonic balance: at the 3000 N records a joint loses contact, its force is only C^1,
-    and harmonic balance converges slowly (1.4e-5 relative error with 64 harmonics, against
-    1e-10 for shooting). Differentiable in forward mode by the implicit function theorem
-    (`ImplicitForward`), as the Levenberg-Marquardt Jacobian needs.
-    """
-    n_harm = force_coeffs.shape[-1]
-    forcing = _forcing(frequency_hz, force_coeffs)
-    args = (system, forcing)
-    y_lin = jax.lax.stop_gradient(linear_initial_state(system, frequency_hz, force_coeffs))
-    method = Shooting(settings=NONLINEAR_SETTINGS, samples_per_period=NONLINEAR_SAMPLES)
-    orbit = periodic_orbit(bsfs_jax.vector_field, y_lin, args, forcing.period, method=method,
-                           scale=jnp.asarray(BSFS_SCALE), adjoint=ImplicitForward(),
-                           throw=False)
-    ts, ys = method.samples(bsfs_jax.vector_field, orbit.unknowns, args, forcing.period, 1,
-                            orbit.scale, dfx.ForwardMode())
-    a = accelerations(system, ys[:, :3], ys[:, 3:], jax.vmap(forcing)(ts))[:, 2]
-    n = jnp.arange(NONLINEAR_SAMPLES)
-    k = jnp.arange(1, n_harm + 1)
-    basis = jnp.exp(-2j * jnp.pi * k[:, None] * n[None, :] / NONLINEAR_SAMPLES)
-    return (2.0 / NONLINEAR_SAMPLES) * (basis @ a), orbit.converged
-
-
-def nonlinear_acceleration_transient(system, frequency_hz, force_coeffs, *,
-                                     transient_periods: int = 200,
-                                     settings=bsfs_jax.SolverSettings(rtol=1e-10, atol=1e-14)):
-    """Reference for `nonlinear_acceleration`: simulate and discard a long transient.
-
-    Used in the tests and the benchmark to check the shooting result, not in the fit.
-    """
-    n_harm = force_coeffs.shape[-1]
-    forcing = _forcing(frequency_hz, force_coeffs)
-    y0 = linear_initial_state(system, frequency_hz, force_coeffs)
-    traj = simulate_core(system, forcing, y0,
-                         Horizon(1, transient_periods, NONLINEAR_SAMPLES), settings)
-    a = traj.acceleration[:-1, 2]
-    n = jnp.arange(NONLINEAR_SAMPLES)
-    k = jnp.arange(1, n_harm + 1)
-    basis = jnp.exp(-2j * jnp.pi * k[:, None] * n[None, :] / NONLINEAR_SAMPLES)
-    return (2.0 / NONLINEAR_SAMPLES) * (basis @ a), traj.ok
 
 
 def waveform(coeffs, frequency_hz, t):

@@ -5,7 +5,7 @@ is the only static one, so the compiled programs (`residual_and_jacobian`, `pred
 and the solve in `_solve.py`) are cached per structure and array shapes, not per problem.
 
 Per speed group the sine records' model is the linearised FRF, plus the first-order
-harmonic-balance correction where `sine_first`, replaced by the periodic orbit (shooting)
+harmonic-balance correction where `sine_first`, replaced by the periodic orbit (harmonic balance)
 where `sine_orbit` (computed only for the `orbit_index` slots); FRF lines use the
 linearised accelerance.
 """
@@ -21,12 +21,8 @@ import jax.numpy as jnp
 import bsfs_jax
 
 from ._groups import FitData, Structure
-from ._measurement import (
-    linear_acceleration,
-    linearisation_error,
-    nonlinear_acceleration,
-    receptance,
-)
+from ._measurement import linear_acceleration, linearisation_error, receptance
+from ._orbit_model import nonlinear_acceleration
 
 # A trial point whose model is not finite (a joint without preload) costs this per entry.
 BAD_RESIDUAL = 1e6
@@ -49,7 +45,7 @@ def params_at(theta, data: FitData, structure: Structure, group: int):
     return p
 
 
-def _sine_model(system, g, first_order: bool):
+def _sine_model(system, g, first_order: bool, sweeps: bool = False):
     lin = linear_acceleration(system, g.sine_freq, g.sine_force)
     if first_order:
         corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(
@@ -58,8 +54,12 @@ def _sine_model(system, g, first_order: bool):
     if not g.orbit_index.shape[0]:
         return lin
     idx = g.orbit_index
-    fn = lambda f, fc: nonlinear_acceleration(system, f, fc)
-    nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx])
+    if sweeps:
+        fn = lambda f, fc, am, sw: nonlinear_acceleration(system, f, fc, am, sweep=sw)
+    else:
+        fn = lambda f, fc, am, sw: nonlinear_acceleration(system, f, fc, am)
+    nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx],
+                          g.sine_sweep[idx])
     nl = jnp.where(ok[:, None], nl, jnp.inf)
     # Padded slots repeat a real slot (the same value twice) or point at a record that is
     # not on the orbit model (masked below).
@@ -72,8 +72,8 @@ def predict(theta, data: FitData, structure: Structure):
     out = []
     for gi, g in enumerate(data.groups):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
-        sine = (_sine_model(system, g, structure.first_order) if g.sine_freq.shape[0]
-                else jnp.zeros(g.sine_freq.shape, complex))
+        sine = (_sine_model(system, g, structure.first_order, structure.sweeps)
+                if g.sine_freq.shape[0] else jnp.zeros(g.sine_freq.shape, complex))
         frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
                if g.frf_freq.shape[0] else jnp.zeros(0, complex))
         out.append((sine, frf))

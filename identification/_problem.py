@@ -133,7 +133,7 @@ class Problem:
     linearised FRF where its predicted error, `linearisation_z[i][0]`, is below `model_error`
     standard errors in every harmonic; else the first-order harmonic-balance correction
     where its own predicted error `linearisation_z[i][1]` is; else the periodic orbit by
-    shooting; see `_choice.py`), "linear", "first-order" or "nonlinear". FRF records use
+    harmonic balance; see `_choice.py`), "linear", "first-order" or "nonlinear". FRF records use
     the linearised model (the small-signal FRF); in "auto" the lines of a chirp whose
     predicted error exceeds `model_error` are left out (`frf_left_out`).
     `nonlinear_ratio`: instead of the error rule, choose by the joint amplitude / preload

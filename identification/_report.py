@@ -37,6 +37,15 @@ class IdentificationResult:
     data: list
     seconds: float
     linearity: np.ndarray | None = None  # (p, 2) profile check, see _profile.py
+    # Per periodic-orbit record (index -> dict): the branch it is fitted on, the evidence,
+    # and the orbit model's truncation error (`record_branches`).
+    branches: dict = dataclasses.field(default_factory=dict)
+
+    def model_labels(self) -> list[str]:
+        """Per record: its model, with the branch where it is on the periodic orbit."""
+        return [m if i not in self.branches else f"{m}, {self.branches[i]['branch']}"
+                + (" branch" if self.branches[i]["branch"] in ("upper", "lower") else "")
+                for i, m in enumerate(self.problem.models)]
 
     def params(self, speed=None):
         """Identified `BallScrewParams` at `speed` (default: the first speed of the data)."""
@@ -91,7 +100,40 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
         unc.noise["profile"] = "checked" if profile else "skipped (profile off)"
     if profile:
         unc, lin = profile_intervals(result, unc)
-    return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin)
+    branch = record_branches(problem, result.theta)
+    return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin,
+                                branch)
+
+
+def record_branches(problem: Problem, theta) -> dict:
+    """For each record on the periodic-orbit model, at `theta`: which branch its orbit is
+    ("single", "upper", "lower" or "unresolved"; `_orbit_model.branches`), the evidence, the
+    sweep direction that reaches it, and the model's truncation error in standard errors
+    (16 against 32 harmonics, largest over the usable harmonics)."""
+    from ._choice import _z
+    from ._orbit_model import branches, truncation_errors
+
+    out = {}
+    for s in problem.speeds:
+        idx = [i for i, d in enumerate(problem.data)
+               if d.speed_rpm == s and problem.models[i] == "nonlinear"]
+        if not idx:
+            continue
+        system = bsfs_jax.build_system(problem.params_at(np.asarray(theta), s))
+        recs = [problem.data[i] for i in idx]
+        args = ([d.frequency_hz for d in recs], np.stack([d.force for d in recs]),
+                np.stack([d.acceleration for d in recs]))
+        from ._groups import sweep_direction
+
+        labels, evidence = branches(system, *args, [sweep_direction(d) for d in recs])
+        trunc = truncation_errors(system, *args)
+        for j, i in enumerate(idx):
+            d = recs[j]
+            var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
+            usable = d.frequency_hz * d.harmonics <= problem.max_harmonic_hz
+            z = float(np.max(np.where(usable, _z(trunc[j], var), 0.0)))
+            out[i] = dict(branch=labels[j], orbit_truncation_error_std=z, **evidence[j])
+    return out
 
 
 def _model_errors(z, frf: bool) -> dict:
@@ -138,6 +180,8 @@ def _record_rows(res: IdentificationResult):
                                                            / 2)),
                        noise_rms_m_s2=d.acceleration_noise,
                        fundamental_error_rel=float(abs(diff[0]) / abs(d.acceleration[0])))
+        if i in res.branches:
+            row.update(res.branches[i])
         rows.append(row)
     return rows
 
@@ -212,7 +256,7 @@ def report_dict(res: IdentificationResult) -> dict:
             optimizer_converged=fr.optimizer_converged, remaining_step_sigma=fr.remaining_step,
             iterations=fr.steps, cost=fr.cost, gradient_max=float(np.max(np.abs(grad))),
             starts=[{k: v for k, v in s.items() if k != "theta"} for s in fr.starts],
-            starts_reached_best=int(sum(s["same_minimum"] for s in fr.starts)),
+            starts_reached_best=fr.starts_agreeing,
             staged=fr.stage1,
             seconds=res.seconds, fit_seconds=fr.seconds,
             method="optimistix dogleg (Gauss-Newton point by SVD truncated at the "
@@ -223,7 +267,8 @@ def report_dict(res: IdentificationResult) -> dict:
                    + "; forward-mode Jacobians; multi-start",
             measurement_model="sine records: Fourier coefficients of force and worktable "
                               "acceleration; per record the linearised FRF, its first-order "
-                              "harmonic-balance correction or the periodic orbit (shooting), "
+                              "harmonic-balance correction or the periodic orbit (harmonic "
+                              "balance, from the record's measured state or its sweep), "
                               f"the simplest whose predicted error is below {MODEL_ERROR:g} "
                               "standard errors; chirp/random/hammer: FRF lines vs the "
                               "linearised FRF, a chirp's lines beyond that bound left out",

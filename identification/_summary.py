@@ -79,7 +79,32 @@ def _stage_lines(fr) -> list[str]:
             f"{st['starts']} quasi-random starts over the prior's 95 % region: "
             f"{st['reached_best']} reached the best cost ({st['distinct_optima']} distinct "
             f"optim{'um' if st['distinct_optima'] == 1 else 'a'}); the full fit started from "
-            "the best of them."]
+            + ("it." if st.get("full_fit_starts", 1) == 1 else
+               f"the {st['full_fit_starts']} lowest.")]
+
+
+def _branch_lines(res) -> list[str]:
+    """Which orbit each periodic-orbit record was fitted on (one line), and a line per
+    record whose orbit is unresolved or whose model truncation error is not small."""
+    from ._choice import MODEL_ERROR
+
+    br = getattr(res, "branches", None) or {}
+    if not br:
+        return []
+    names = {i: res.data[i].name for i in br}
+    text = ", ".join(f"'{names[i]}' {b['branch']}" for i, b in sorted(br.items()))
+    out = [f"Branches (periodic-orbit records; up- and down-sweep orbits at the estimate): "
+           f"{text}."]
+    for i, b in sorted(br.items()):
+        if b["branch"] == "unresolved":
+            out.append(f"Record '{names[i]}': its fitted orbit is not one that a stepped sine "
+                       "reaches sweeping up or down (or an orbit failed); check the record "
+                       "and the fit's branch.")
+        if b["orbit_truncation_error_std"] > MODEL_ERROR:
+            out.append(f"Record '{names[i]}': the orbit model's truncation error is "
+                       f"{b['orbit_truncation_error_std']:.2g} standard errors (above "
+                       f"{MODEL_ERROR:g}).")
+    return out
 
 
 def summary_text(res) -> str:
@@ -91,12 +116,13 @@ def summary_text(res) -> str:
     lines = [f"Identification from {len(res.data)} record(s)"
              f"{' (SYNTHETIC data)' if synth else ''}: {_record_line(res.data)}",
              f"Model: linearised FRF for {kinds['linear']} sine record(s), first-order "
-             f"nonlinear correction for {kinds['first-order']}, periodic orbit (shooting) for "
-             f"{kinds['nonlinear']}, {kinds['frf']} FRF record(s); "
+             f"nonlinear correction for {kinds['first-order']}, periodic orbit (harmonic "
+             f"balance) for {kinds['nonlinear']}, {kinds['frf']} FRF record(s); "
              + ("maximum a posteriori with priors (sigma in the table)" if pb.priors is not None
                 else "maximum likelihood (no priors)") + f"; {res.seconds:.1f} s.",
              *_left_out_lines(res),
              *_stage_lines(fr),
+             *_branch_lines(res),
              f"Fit {fr.convergence_text}; {fr.steps} iterations" + _CHOICE.get(fr.model_choice,
                                                                                "") + ".",
              f"Noise: {u.noise['text']}.", ""]

@@ -144,8 +144,8 @@ def _antialias(x, fs_high, cutoff):
 
 
 @eqx.filter_jit
-def _respond(system, forcing, ts, settings):
-    res = bsfs_jax.integrate(bsfs_jax.vector_field, jnp.zeros(6), (system, forcing), 0.0,
+def _respond(system, forcing, ts, settings, y0):
+    res = bsfs_jax.integrate(bsfs_jax.vector_field, y0, (system, forcing), 0.0,
                              ts[-1], ts, settings, throw=False)
     x, v = res.ys[:, :3], res.ys[:, 3:]
     force = jax.vmap(forcing)(ts)
@@ -153,8 +153,8 @@ def _respond(system, forcing, ts, settings):
 
 
 @eqx.filter_jit
-def _respond_many(system, forcings, ts, settings):
-    return jax.vmap(lambda f: _respond(system, f, ts, settings))(forcings)
+def _respond_many(system, forcings, ts, settings, y0s):
+    return jax.vmap(lambda f, y0: _respond(system, f, ts, settings, y0))(forcings, y0s)
 
 
 CHIRP_TAPER = 0.02  # fraction of the record in each sin^2 taper of a chirp
@@ -165,7 +165,7 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
                sample_rate_hz: float = 10240.0, effects: TestEffects = TestEffects(),
                seed: int = 0, rtol: float = 1e-8, atol: float = 1e-12,
                excitation: str = "sine", start_hz: float | None = None,
-               stop_hz: float | None = None) -> Record:
+               stop_hz: float | None = None, sweep: str | None = None) -> Record:
     """A synthetic record of `duration_s` at `sample_rate_hz` (see the module docstring).
 
     `excitation`: "sine" (at `frequency_hz`, amplitude `force_n`), "chirp" (linear sweep
@@ -174,18 +174,24 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
     metadata carries the excitation and its band, the force level, sample rate, speed,
     ambient temperature, seed and `synthetic = "true"`. Raises `ValueError` for a bad band
     and `bsfs_jax.SolverError` if the simulation fails.
+
+    `sweep` ("up" or "down", sine only): a step of a stepped-sine sweep. The simulation
+    starts on the periodic orbit that sweeping that way reaches (where the drive has two
+    stable orbits near a fold, the branch the sweep follows), not from rest, and the header
+    carries `sweep`.
     """
     return synthesize_many(params, frequency_hz, force_n, [seed], duration_s=duration_s,
                            sample_rate_hz=sample_rate_hz, effects=effects, rtol=rtol,
                            atol=atol, excitation=excitation, start_hz=start_hz,
-                           stop_hz=stop_hz)[0]
+                           stop_hz=stop_hz, sweep=sweep)[0]
 
 
 def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *,
                     duration_s: float = 2.0, sample_rate_hz: float = 10240.0,
                     effects: TestEffects = TestEffects(), rtol: float = 1e-8,
                     atol: float = 1e-12, excitation: str = "sine",
-                    start_hz: float | None = None, stop_hz: float | None = None) -> list:
+                    start_hz: float | None = None, stop_hz: float | None = None,
+                    sweep: str | None = None) -> list:
     """`synthesize` for several seeds at once: the same test repeated (new phases, noise and
     drift per seed), the simulations as lanes of one vmapped integration. Record k is the
     one `synthesize(..., seed=seeds[k])` makes: the same random draws in the same order, and
@@ -193,6 +199,8 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
     tests/test_identification.py checks 1e-6 of the peak)."""
     if excitation not in ("sine", "chirp", "random"):
         raise ValueError(f"excitation must be 'sine', 'chirp' or 'random', got {excitation!r}")
+    if sweep not in (None, "up", "down") or (sweep and excitation != "sine"):
+        raise ValueError(f"sweep must be 'up' or 'down' (sine records only), got {sweep!r}")
     rngs = [np.random.default_rng(s) for s in seeds]
     if not rngs:
         return []
@@ -209,6 +217,8 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
             effects.drift_frequency_hz, rng.uniform(0, 2 * np.pi)))) for rng in rngs]
         what, name = f"{f:g} Hz, {force_n:g} N", f"synthetic_{f:g}Hz_{force_n:g}N"
         meta = {"frequency_hz": f, "force_amplitude_n": float(force_n)}
+        if sweep:
+            meta["sweep"] = sweep
     else:
         lo, hi = _band(start_hz, stop_hz, sample_rate_hz)
         n_settle = 0 if excitation == "chirp" else int(round(effects.settle_s * fs_hi))
@@ -228,12 +238,13 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
     system = bsfs_jax.build_system(params)
     from bsfs_jax.solvers import check_result
 
+    y0s = jnp.stack([_start_state(system, fc, sweep) for fc in forcings])
     if len(forcings) == 1:
-        force, acc, result = _respond(system, forcings[0], ts, settings)
+        force, acc, result = _respond(system, forcings[0], ts, settings, y0s[0])
         lanes = [(np.asarray(force), np.asarray(acc))]
     else:
         stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *forcings)
-        force, acc, result = _respond_many(system, stacked, ts, settings)
+        force, acc, result = _respond_many(system, stacked, ts, settings, y0s)
         force, acc = np.asarray(force), np.asarray(acc)
         lanes = list(zip(force, acc))
     check_result(result, settings, f"synthetic record {what}")
@@ -257,6 +268,21 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
         records.append(Record(t, force, acc, f0, float(force_n), float(sample_rate_hz),
                               m["speed_rpm"], m["ambient_c"], m, name))
     return records
+
+
+def _start_state(system, forcing, sweep):
+    """Rest, or for a stepped-sine step the swept orbit's state under the shaker's
+    fundamental, P sin(w t + phi) = Re(P (sin phi - i cos phi) e^{i w t})."""
+    if not sweep:
+        return jnp.zeros(6)
+    from ._orbit_model import swept_state
+
+    fc = forcing.amplitude * jnp.asarray([jnp.sin(forcing.phase) - 1j * jnp.cos(forcing.phase)])
+    y0, ok = swept_state(system, forcing.frequency, fc, 1.0 if sweep == "up" else -1.0)
+    if not bool(ok):
+        raise bsfs_jax.SolverError(f"no periodic orbit for the {sweep}-sweep start at "
+                                   f"{float(forcing.frequency):g} Hz")
+    return y0
 
 
 def _band(start_hz, stop_hz, sample_rate_hz):

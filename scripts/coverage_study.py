@@ -245,7 +245,7 @@ def run_replicate(truth, prior, design: str, replicate: int, frf_dir: Path | Non
     return dict(replicate=replicate, seeds=record_seeds(replicate), design=design,
                 params=params, converged=bool(res.converged),
                 remaining_step=float(res.remaining_step), iterations=int(res.steps),
-                starts_same_minimum=int(sum(s["same_minimum"] for s in res.starts)),
+                starts_same_minimum=res.starts_agreeing,
                 noise_scale=unc.noise.get("noise_scale"), scaled_by=unc.noise["scaled_by"],
                 chi2=unc.noise["chi2"], dof=unc.noise["dof"], models=list(pb.models),
                 amplitude_ratios=[float(a) for a in pb.amplitude_ratios], profiled=profiled,

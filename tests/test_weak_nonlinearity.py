@@ -13,11 +13,8 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._measurement import (
-    linear_acceleration,
-    linearisation_error,
-    nonlinear_acceleration,
-)
+from identification._measurement import linear_acceleration, linearisation_error
+from identification._orbit_model import nonlinear_acceleration
 
 
 @pytest.fixture(scope="module")

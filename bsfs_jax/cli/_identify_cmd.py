@@ -130,7 +130,7 @@ def run_identify(args) -> int:
     paths = idn.write_identified(res, out)
     write_json(out / "report.json", report)
     written = [*paths, out / "report.json"]
-    sines = [(d, m, c) for d, m, c in zip(res.data, res.problem.models, res.model_harmonics())
+    sines = [(d, m, c) for d, m, c in zip(res.data, res.model_labels(), res.model_harmonics())
              if m != "frf"]
     if sines:
         fig = fit_figure([d.record for d, _, _ in sines], [c for _, _, c in sines],
