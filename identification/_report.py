@@ -43,8 +43,9 @@ class IdentificationResult:
 
     def model_labels(self) -> list[str]:
         """Per record: its model, with the branch where it is on the periodic orbit."""
-        return [m if i not in self.branches else f"{m}, {self.branches[i]['branch']}"
-                + (" branch" if self.branches[i]["branch"] in ("upper", "lower") else "")
+        word = {"single": "single orbit", "upper": "upper branch", "lower": "lower branch",
+                "unresolved": "branch unresolved"}
+        return [m if i not in self.branches else f"{m}, {word[self.branches[i]['branch']]}"
                 for i, m in enumerate(self.problem.models)]
 
     def params(self, speed=None):

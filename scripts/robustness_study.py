@@ -1,0 +1,244 @@
+"""Robustness study of identification through the resonance (issue 24, item 3).
+
+Worn drives are drawn over the prior ranges (seeded), each is tested with a through-resonance
+plan, and each test is identified from a cold start as a user would (`identification.identify`,
+the default preset as prior with the default priors, 3 starts, the staged multi-start fit).
+
+- Fit sets: `preload` (PRELOAD_FIT: both preloads and the three dampers; drives with preloads
+  drawn uniformly over 50-100 % of nominal and dampers log-uniformly over the central 95 % of
+  their priors) and `default` (DEFAULT_FIT: Hertz coefficients, screw stiffness, dampers and
+  expansion, each log-uniform over the central 95 % of its prior, preloads nominal: the truth
+  must lie in the fitted family for coverage to mean anything).
+- The plan, relative to the drive's own first natural frequency f1 (`bsfs_jax.modes`): 100 N
+  stepped sines swept up at 0.13, 0.35, 0.62, 0.84, 0.95, 1.03, 1.24 and 1.77 f1 (two within
+  +-10 % of f1), 0.5 s each; 3000 N sines at 150 and 300 Hz; a 5 N chirp 50-2500 Hz over 1 s;
+  40 dB noise on both channels, the shaker's default distortion and drift; 2000 r/min.
+- Per drive: converged or not (and why), the cost at the estimate against the cost at the
+  truth (same problem, same models), whether each 95 % interval covers the truth, z-scores,
+  seconds.
+
+    python scripts/robustness_study.py --set preload          # 100 drives
+    python scripts/robustness_study.py --set default --drives 10
+    python scripts/robustness_study.py --report-only          # docs/ROBUSTNESS.md tables
+
+Each drive is appended as one JSON line to out/robustness/<set>.jsonl (fsynced); a rerun
+skips the drives already there, so an interrupted study resumes. Results: docs/ROBUSTNESS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+import numpy as np  # noqa: E402
+from coverage_study import append_line, binom_ci, read_done  # noqa: E402
+
+import bsfs_jax  # noqa: E402
+import identification as idn  # noqa: E402
+
+FS = 10240.0
+SPEED = 2000.0
+RATIOS = (0.13, 0.35, 0.62, 0.84, 0.95, 1.03, 1.24, 1.77)
+LOW_FORCE, HIGH = 100.0, ((150.0, 3000.0), (300.0, 3000.0))
+SINE_S = 0.5
+CHIRP = dict(force=5.0, duration=1.0, start=50.0, stop=2500.0)
+EFFECTS = idn.TestEffects(accel_snr_db=40.0, force_snr_db=40.0)
+SETS = {"preload": idn.PRELOAD_FIT, "default": idn.DEFAULT_FIT}
+OUT = ROOT / "out" / "robustness"
+Z95 = 1.959963984540054
+COST_RTOL = 1e-6  # "no higher than the cost at the truth", up to round-off
+
+
+def draw_drive(kind: str, drive: int):
+    """The drive's truth (BallScrewParams at SPEED) and {fit name: true value}."""
+    rng = np.random.default_rng(20_000 + drive)
+    p = bsfs_jax.preset().replace("thermal.speed_rpm", SPEED)
+    names = SETS[kind]
+    truth = {}
+    for name in names:
+        fp = idn.FIT_PARAMETERS[name]
+        value = float(p.get(fp.key))
+        if name.endswith("_preload"):
+            value *= rng.uniform(0.5, 1.0)
+        else:
+            value *= float(np.exp(rng.uniform(-Z95, Z95) * fp.prior_sigma))
+        p = p.replace(fp.key, value)
+        truth[name] = value
+    return p, truth
+
+
+def plan(params):
+    """[(frequency or None for the chirp, force, sweep)] and the drive's f1 [Hz]."""
+    f1 = float(np.asarray(bsfs_jax.modes(bsfs_jax.build_system(params)).frequencies_hz)[0])
+    sines = [(round(r * f1, 1), LOW_FORCE, "up") for r in RATIOS] + [
+        (f, n, None) for f, n in HIGH]
+    return sines, f1
+
+
+def synth(params, drive: int):
+    sines, f1 = plan(params)
+    recs = [idn.synthesize(params, None, CHIRP["force"], duration_s=CHIRP["duration"],
+                           sample_rate_hz=FS, excitation="chirp", start_hz=CHIRP["start"],
+                           stop_hz=CHIRP["stop"], effects=EFFECTS, seed=3_000_000 + 100 * drive)]
+    for j, (f, force, sweep) in enumerate(sines):
+        recs.append(idn.synthesize(params, f, force, duration_s=SINE_S, sample_rate_hz=FS,
+                                   effects=EFFECTS, sweep=sweep,
+                                   seed=3_000_000 + 100 * drive + 1 + j))
+    return recs, f1
+
+
+def cost_at(problem, values: dict) -> float:
+    theta = problem.theta_of(np.asarray([values[n] for n in problem.names]))
+    r, _ = problem.rj(theta)
+    r = np.where(np.isfinite(r), r, 1e6)
+    return 0.5 * float(r @ r)
+
+
+def failure_cause(res, cost_fit, cost_truth) -> str | None:
+    fr = res.fit
+    if not fr.converged:
+        if fr.model_choice == "unsettled":
+            return "model choice unsettled"
+        if not fr.remaining_step < 0.01:
+            return "remaining step (optimiser stopped short)"
+        return "starts disagree"
+    if cost_fit > cost_truth * (1 + COST_RTOL) + 1e-9:
+        return "converged above the truth's cost"
+    return None
+
+
+def run_drive(kind: str, drive: int) -> dict:
+    params, truth = draw_drive(kind, drive)
+    t0 = time.perf_counter()
+    row = dict(drive=drive, truth=truth)
+    try:
+        recs, f1 = synth(params, drive)
+    except Exception as exc:  # noqa: BLE001 - a drive the simulation cannot run
+        return dict(row, cause=f"synthesis failed: {exc}".splitlines()[0], converged=False)
+    t1 = time.perf_counter()
+    try:
+        res = idn.identify(recs, bsfs_jax.preset().replace("thermal.speed_rpm", SPEED),
+                           SETS[kind])
+    except Exception as exc:  # noqa: BLE001 - recorded as a failure cause
+        traceback.print_exc()
+        return dict(row, f1_hz=f1, cause=f"exception: {type(exc).__name__}: {exc}"
+                    .splitlines()[0], converged=False)
+    t2 = time.perf_counter()
+    pb, u = res.problem, res.uncertainty
+    cost_fit = float(res.fit.cost)
+    cost_truth = cost_at(pb, truth)
+    params_out = {}
+    for i, name in enumerate(pb.names):
+        lo, hi = u.ci95[i]
+        z = (np.log(u.values[i] / truth[name]) / u.scaled_std[i]
+             if np.isfinite(u.scaled_std[i]) and u.scaled_std[i] > 0 else None)
+        params_out[name] = dict(value=float(u.values[i]), covered=bool(lo <= truth[name] <= hi),
+                                z=None if z is None else float(z),
+                                determined=bool(u.determined[i]))
+    return dict(row, f1_hz=f1, converged=bool(res.fit.converged),
+                cause=failure_cause(res, cost_fit, cost_truth),
+                cost_fit=cost_fit, cost_truth=cost_truth,
+                starts_agreeing=res.fit.starts_agreeing, starts_total=res.fit.starts_total,
+                branches={res.data[i].name: b["branch"] for i, b in res.branches.items()},
+                models=list(pb.models), params=params_out,
+                synth_s=t1 - t0, fit_s=t2 - t1)
+
+
+def summarize(rows: list[dict], kind: str) -> dict:
+    n = len(rows)
+    conv = [r for r in rows if r.get("converged")]
+    ok = [r for r in conv if r.get("cause") is None]
+    causes = {}
+    for r in rows:
+        if r.get("cause"):
+            causes[r["cause"]] = causes.get(r["cause"], 0) + 1
+    per = {}
+    for name in SETS[kind]:
+        cov = [r["params"][name]["covered"] for r in conv]
+        zs = [r["params"][name]["z"] for r in conv if r["params"][name]["z"] is not None]
+        k = int(sum(cov))
+        per[name] = dict(covered=k, n=len(cov), coverage=k / len(cov) if cov else None,
+                         ci=binom_ci(k, len(cov)) if cov else None,
+                         z_mean=float(np.mean(zs)) if zs else None,
+                         z_std=float(np.std(zs)) if zs else None)
+    branches = {}
+    for r in rows:
+        for b in (r.get("branches") or {}).values():
+            branches[b] = branches.get(b, 0) + 1
+    return dict(set=kind, drives=n, converged=len(conv),
+                converged_ci=binom_ci(len(conv), n) if n else None,
+                converged_at_or_below_truth=len(ok), causes=causes, params=per,
+                branches=branches,
+                fit_s_median=float(np.median([r["fit_s"] for r in rows if "fit_s" in r]))
+                if any("fit_s" in r for r in rows) else None)
+
+
+def markdown(s: dict) -> str:
+    n = s["drives"]
+    lines = [f"### Fit set `{s['set']}`: {n} drives", "",
+             f"- converged: {s['converged']} of {n} "
+             + (f"({100 * s['converged'] / n:.1f} %, 95 % CI {100 * s['converged_ci'][0]:.1f}"
+                f"-{100 * s['converged_ci'][1]:.1f} %)" if n else ""),
+             f"- converged at a cost no higher than the truth's: "
+             f"{s['converged_at_or_below_truth']} of {s['converged']}",
+             f"- median fit time {s['fit_s_median']:.1f} s" if s["fit_s_median"] else "",
+             "- orbit records by branch: " + (", ".join(f"{k} {v}" for k, v in
+                                                        sorted(s["branches"].items()))
+                                              or "none"),
+             "", "| parameter | covered | coverage | 95 % CI | mean z | std z |",
+             "|---|---|---|---|---|---|"]
+    for name, p in s["params"].items():
+        if not p["n"]:
+            continue
+        lines.append(f"| {name} | {p['covered']}/{p['n']} | {100 * p['coverage']:.1f} % | "
+                     f"{100 * p['ci'][0]:.1f}-{100 * p['ci'][1]:.1f} % | "
+                     f"{p['z_mean']:+.2f} | {p['z_std']:.2f} |")
+    lines += ["", "Failures by cause:", ""]
+    lines += [f"- {c}: {k}" for c, k in sorted(s["causes"].items(), key=lambda x: -x[1])] or [
+        "- none"]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", choices=sorted(SETS), action="append",
+                    help="fit set (repeatable; default both)")
+    ap.add_argument("--drives", type=int, default=100)
+    ap.add_argument("--report-only", action="store_true")
+    args = ap.parse_args(argv)
+    kinds = args.set or ["preload", "default"]
+    OUT.mkdir(parents=True, exist_ok=True)
+    for kind in kinds:
+        path = OUT / f"{kind}.jsonl"
+        done = {r["drive"] for r in read_done(path)}
+        if not args.report_only:
+            for drive in range(args.drives):
+                if drive in done:
+                    continue
+                row = run_drive(kind, drive)
+                append_line(path, row)
+                print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
+                      f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
+        rows = [r for r in read_done(path) if r["drive"] < args.drives]
+        if not rows:
+            continue
+        s = summarize(rows, kind)
+        s["machine"] = f"{platform.machine()}, {platform.python_version()}"
+        (OUT / f"{kind}_summary.json").write_text(json.dumps(s, indent=1))
+        md = markdown(s)
+        (OUT / f"{kind}_summary.md").write_text(md)
+        print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
