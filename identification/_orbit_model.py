@@ -184,12 +184,6 @@ def swept_orbit(system, frequency_hz, force_coeffs, direction):
     return orbit_of(system, frequency_hz, force_coeffs, jax.lax.stop_gradient(z))
 
 
-def _swept(system, frequency_hz, force_coeffs, direction):
-    orbit = swept_orbit(system, frequency_hz, force_coeffs, direction)
-    return (acceleration_of(orbit, frequency_hz, force_coeffs.shape[-1]), orbit.stable,
-            orbit.converged)
-
-
 @eqx.filter_jit
 def swept_state(system, frequency_hz, force_coeffs, direction):
     """(state at t = 0, converged) of `swept_orbit` (synthetic stepped-sine records)."""
@@ -199,43 +193,34 @@ def swept_state(system, frequency_hz, force_coeffs, direction):
 
 @eqx.filter_jit
 def _branch_kernel(system, freq, force, measured, sweep):
+    """Per record: the fitted, up-swept and down-swept orbits' (acceleration, stable,
+    converged), and the fitted orbit's truncation error (2 x `ORBIT_HARMONICS` harmonics,
+    started from the fitted orbit, minus the fitted acceleration)."""
     def one(f, fc, am, sw):
-        z0 = measured_start(system, f, fc, am)
-        fitted = orbit_of(system, f, fc, z0)
-        fit = (acceleration_of(fitted, f, fc.shape[-1]), fitted.stable, fitted.converged)
-        up = _swept(system, f, fc, 1.0)
-        down = _swept(system, f, fc, -1.0)
+        h_f = fc.shape[-1]
+        orbits = (orbit_of(system, f, fc, measured_start(system, f, fc, am)),
+                  swept_orbit(system, f, fc, 1.0), swept_orbit(system, f, fc, -1.0))
+        meas, up, down = ((acceleration_of(o, f, h_f), o.stable, o.converged, o.unknowns)
+                          for o in orbits)
         # A record with a sweep direction is fitted on that sweep's orbit.
         fit = jax.tree_util.tree_map(lambda a, u, d: jnp.where(sw > 0, u, jnp.where(
-            sw < 0, d, a)), fit, up, down)
-        return fit, up, down
+            sw < 0, d, a)), meas, up, down)
+        wide = _method(2 * ORBIT_HARMONICS)
+        z32 = wide.from_coefficients(_method(), fit[3], 6)
+        a32 = acceleration_of(orbit_of(system, f, fc, z32, 2 * ORBIT_HARMONICS), f, h_f)
+        return fit[:3], up[:3], down[:3], a32 - fit[0]
 
     return jax.vmap(one)(freq, force, measured, sweep)
-
-
-@eqx.filter_jit
-def _truncation_kernel(system, freq, force, measured):
-    def one(f, fc, am):
-        a16, _ = nonlinear_acceleration(system, f, fc, am, ORBIT_HARMONICS)
-        a32, _ = nonlinear_acceleration(system, f, fc, am, 2 * ORBIT_HARMONICS)
-        return a32 - a16
-
-    return jax.vmap(one)(freq, force, measured)
-
-
-def truncation_errors(system, freq, force, measured):
-    """Difference (R, H) of the orbit model at 2 x `ORBIT_HARMONICS` harmonics and at
-    `ORBIT_HARMONICS` (the model's truncation error) for records at one speed."""
-    return np.asarray(_truncation_kernel(system, jnp.asarray(freq, float),
-                                         jnp.asarray(force), jnp.asarray(measured)))
 
 
 def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
     """Per record (lists): the branch label of the orbit the record is fitted on ("single",
     "upper", "lower", or "unresolved" where the orbits could not be computed or the fitted
-    one is neither of the swept ones), and a dict of the evidence (fundamental amplitudes
-    [m/s^2] of the fitted, up-swept and down-swept orbits, their stability)."""
-    (a_fit, s_fit, ok_fit), up, down = (
+    one is neither of the swept ones); a dict of the evidence (fundamental amplitudes
+    [m/s^2] of the fitted, up-swept and down-swept orbits, their stability); and the fitted
+    orbit's truncation error (R, H) (2 x `ORBIT_HARMONICS` harmonics against
+    `ORBIT_HARMONICS`). One compiled program for all of it."""
+    (a_fit, s_fit, ok_fit), up, down, trunc = (
         jax.tree_util.tree_map(np.asarray, out) for out in _branch_kernel(
             system, jnp.asarray(freq, float), jnp.asarray(force), jnp.asarray(measured),
             jnp.zeros(len(freq)) if sweep is None else jnp.asarray(sweep, float)))
@@ -261,4 +246,4 @@ def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
                                    "down" if same(a_fit, down[0]) else "neither")
         labels.append(label)
         evidence.append(ev)
-    return labels, evidence
+    return labels, evidence, trunc

@@ -112,7 +112,7 @@ def record_branches(problem: Problem, theta) -> dict:
     sweep direction that reaches it, and the model's truncation error in standard errors
     (16 against 32 harmonics, largest over the usable harmonics)."""
     from ._choice import _z
-    from ._orbit_model import branches, truncation_errors
+    from ._orbit_model import branches
 
     out = {}
     for s in problem.speeds:
@@ -126,8 +126,8 @@ def record_branches(problem: Problem, theta) -> dict:
                 np.stack([d.acceleration for d in recs]))
         from ._groups import sweep_direction
 
-        labels, evidence = branches(system, *args, [sweep_direction(d) for d in recs])
-        trunc = truncation_errors(system, *args)
+        labels, evidence, trunc = branches(system, *args,
+                                           [sweep_direction(d) for d in recs])
         for j, i in enumerate(idx):
             d = recs[j]
             var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var

@@ -43,7 +43,7 @@ def test_each_record_is_labelled_with_the_branch_it_is_on(swept_records):
     args = ([d.frequency_hz for d in ds], np.stack([d.force for d in ds]),
             np.stack([d.acceleration for d in ds]))
     for sweep in (None, [1.0, -1.0]):  # from the measured state, and from the header
-        labels, evidence = branches(system, *args, sweep)
+        labels, evidence, _ = branches(system, *args, sweep)
         # Sweeping up, the drive stays on the low-amplitude orbit up to the upper fold.
         assert labels == ["lower", "upper"]
         assert [e["sweep_reaching_it"] for e in evidence] == ["up", "down"]
