@@ -190,6 +190,7 @@ def markdown(s: dict) -> str:
                 f"-{100 * s['converged_ci'][1]:.1f} %)" if n else ""),
              f"- converged at a cost no higher than the truth's: "
              f"{s['converged_at_or_below_truth']} of {s['converged']}",
+             f"- code: {', '.join(s.get('commits', []))}",
              f"- median fit time {s['fit_s_median']:.1f} s" if s["fit_s_median"] else "",
              "- orbit records by branch: " + (", ".join(f"{k} {v}" for k, v in
                                                         sorted(s["branches"].items()))
@@ -208,23 +209,38 @@ def markdown(s: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _commit() -> str:
+    """The code's git commit (with "+changes" where the work tree differs), for the record."""
+    import subprocess
+
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True).stdout
+    head = git("rev-parse", "--short", "HEAD").strip() or "unknown"
+    return head + ("+changes" if git("status", "--porcelain", "--", "bsfs_jax",
+                                      "identification").strip() else "")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--set", choices=sorted(SETS), action="append",
                     help="fit set (repeatable; default both)")
     ap.add_argument("--drives", type=int, default=100)
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--out", type=Path, default=OUT,
+                    help=f"results folder (default {OUT.relative_to(ROOT)})")
     args = ap.parse_args(argv)
     kinds = args.set or ["preload", "default"]
-    OUT.mkdir(parents=True, exist_ok=True)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    commit = _commit()
     for kind in kinds:
-        path = OUT / f"{kind}.jsonl"
+        path = out / f"{kind}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
             for drive in range(args.drives):
                 if drive in done:
                     continue
-                row = run_drive(kind, drive)
+                row = dict(run_drive(kind, drive), commit=commit)
                 append_line(path, row)
                 print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
                       f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
@@ -233,9 +249,10 @@ def main(argv=None) -> int:
             continue
         s = summarize(rows, kind)
         s["machine"] = f"{platform.machine()}, {platform.python_version()}"
-        (OUT / f"{kind}_summary.json").write_text(json.dumps(s, indent=1))
+        s["commits"] = sorted({r.get("commit", "unrecorded") for r in rows})
+        (out / f"{kind}_summary.json").write_text(json.dumps(s, indent=1))
         md = markdown(s)
-        (OUT / f"{kind}_summary.md").write_text(md)
+        (out / f"{kind}_summary.md").write_text(md)
         print(md)
     return 0
 
