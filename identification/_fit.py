@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from ._lm import NO_INFORMATION_STD, gn_step_sigma
+from ._modal import modal_estimate, modal_starts
 from ._problem import Problem
 from ._solve import SolveOptions, solve
 
@@ -52,6 +53,13 @@ class FitResult:
     # A staged fit's first stage (`staged_starts`): what it fitted, its starts, how many
     # reached its best cost; None where the fit was not staged.
     stage1: dict | None = None
+    # Why the model itself cannot be trusted at the estimate (a record without a model
+    # orbit, a truncation error beyond `TRUNCATION_GATE`): each makes the fit not converged.
+    model_issues: list = dataclasses.field(default_factory=list)
+
+    def add_model_issue(self, text: str) -> None:
+        self.model_issues.append(text)
+        self.converged = False
 
     @property
     def starts_agreeing(self) -> int:
@@ -80,6 +88,7 @@ class FitResult:
                        f"standard error (needs < {STEP_TOL:g})")
         if total > 1 and agree < 2:
             why.append(f"only {agree} of {total} starts reached the lowest cost{via}")
+        why += self.model_issues
         if self.model_choice == "unsettled":
             why.append("the choice of model per record still changed at the estimate after a "
                        "repeated fit (a record near the limit of the linear model; choose one "
@@ -108,14 +117,20 @@ def full_used_mask(problem: Problem) -> np.ndarray:
     return np.concatenate([used, np.ones(problem.n_params, bool)])
 
 
+def start_metric(problem: Problem, spread: float = 0.3) -> np.ndarray:
+    """Scale of each fitted coordinate for spreading starts: its prior sigma (`spread`
+    without priors)."""
+    return (problem.prior_sigma if problem.prior_sigma is not None else
+            np.full(problem.n_params, spread))
+
+
 def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
     """Start 0 is the prior; the others spread quasi-randomly (a scrambled Halton sequence,
     seeded) over the prior's central 95 % in every fitted coordinate: the normal quantiles
     of 0.025 + 0.95 u times each prior sigma (+-`spread`-sigma quantiles without priors)."""
     from scipy.stats import norm, qmc
 
-    sigma = (problem.prior_sigma if problem.prior_sigma is not None else
-             np.where(problem.is_log, spread, 0.3))
+    sigma = start_metric(problem, spread)
     out = [np.zeros(problem.n_params)]
     n = max(1, starts) - 1
     if n:
@@ -131,17 +146,26 @@ _DISTINCT = 0.05  # scaled distance beyond which two optima are distinct
 
 def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOptions):
     """Starts for a fit with periodic-orbit records: `STAGE1_STARTS` (or `starts`, if more)
-    quasi-random starts carried to the optimum of the records the cheaper models explain
-    (`Problem.without_orbit_records`; every record linearised where none is left), as one
-    batched solve. The full fit starts from each distinct optimum (lowest cost first, at
-    most max(`starts`, `FULL_STARTS`)); each carries the number of quasi-random starts that
-    reached it (its basin), so agreement among starts is counted in the original starts.
+    quasi-random starts, each moved onto the first resonance read off the records where
+    they bracket it (`_modal.py`: the data-driven first estimate), then carried to the
+    optimum of the records the cheaper models explain (`Problem.without_orbit_records`;
+    every record linearised where none is left), as one batched solve. The full fit starts
+    from each distinct optimum (lowest cost first, at most max(`starts`, `FULL_STARTS`));
+    each carries the number of quasi-random starts that reached it (its basin), so
+    agreement among starts is counted in the original starts.
     Returns (points, basin counts, summary dict for the report)."""
     first = problem.without_orbit_records()
     stage = "records on the linear and first-order models"
     if first is None:
         first, stage = problem.linearised(), "every record on the linearised model"
     pts = start_points(first, max(starts, STAGE1_STARTS), seed)
+    # The data-driven first estimate: every start moved onto the measured resonance.
+    estimate, why_not = modal_estimate(problem)
+    modal = dict(estimate=None, why_not=why_not)
+    if estimate is not None:
+        pts, mismatch = modal_starts(first, estimate, pts, start_metric(first))
+        modal = dict(estimate=estimate.as_dict(), summary=estimate.summary(),
+                     mismatch_se=mismatch)
     out = solve(np.stack(pts), True, first.fit_data, first.structure,
                 dataclasses.replace(options, step_tol=0.1))
     cost = np.where(np.isfinite(out["cost"]), out["cost"], np.inf)
@@ -164,7 +188,7 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
     keep = max(1, starts, FULL_STARTS)
     summary = dict(stage=stage, records=len(first.data), starts=len(pts),
                    reached_best=int(same.sum()), distinct_optima=len(distinct),
-                   full_fit_starts=min(keep, len(distinct)))
+                   full_fit_starts=min(keep, len(distinct)), first_estimate=modal)
     return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary
 
 
@@ -205,6 +229,14 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
                 break
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
                                options, weights)
+    bad = [d.name for d, m in zip(result.problem.data,
+                                  result.problem.model_harmonics(result.theta))
+           if not np.all(np.isfinite(m))]
+    if bad:
+        result.add_model_issue(
+            "the model has no steady state at the estimate for record(s) "
+            + ", ".join(f"'{n}'" for n in bad)
+            + " (its periodic orbit did not converge), so the fit cannot match them")
     result.seconds = time.perf_counter() - t0
     result.stage1 = stage1
     return result

@@ -17,8 +17,12 @@ through-resonance records at the truth (`scripts/orbit_model_check.py`):
   into the fitted ones: 0.29 standard errors at 3000 N / 150 Hz;
 - no ODE solve in the program: one evaluation costs 3-10x less, and the program compiles
   in a fraction of the time.
-The remaining truncation error is reported per record at the estimate (`truncation_z`,
-16 against 32 harmonics, in standard errors).
+The remaining truncation error is checked per record at the estimate (`branches`: 16
+against 32 harmonics, in standard errors; above `_report.TRUNCATION_GATE` the fit is not
+converged). So the engine's own bound on the HB defect (`ORBIT_ERROR_TOL`) is only a guard
+against a gross failure: at 1e-3 it rejected 16-harmonic orbits at 3000 N on worn drives
+(bearing preload near half its nominal) whose harmonics agree with 64 harmonics to 0.01
+m/s^2, 1/80 of the records' noise; the fit then had no model for those records.
 
 **Start, and the branch the record is on.** Near a fold the model has two stable orbits at
 one frequency and force. Newton is started from the record's own measured state: the
@@ -29,7 +33,8 @@ nearer the measurement, so each record is fitted to the orbit it is on.
 `branches` says which one that is, at the estimate: the orbits that a stepped sine reaches
 sweeping up to the record's frequency and sweeping down to it (natural continuation in
 frequency over `SWEEP_SPAN` on each side, `SWEEP_STEPS` steps, Newton from the previous
-step's orbit: like the test itself it follows a branch until its fold and then jumps).
+step's orbit: like the test itself it follows a branch until its fold and then jumps,
+restarting from the scaled linear response, `JUMP_SCALES`).
 Where they differ the record's orbit is "upper" (the larger fundamental amplitude of the
 two) or "lower"; where they coincide it is the only one ("single").
 
@@ -52,10 +57,10 @@ from bsfs_jax.solvers import HarmonicBalance, ImplicitForward, periodic_orbit
 from ._measurement import receptance
 
 ORBIT_HARMONICS = 16
-#: The engine's own acceptance bound on the HB error estimate (a relative state error). The
-#: model's accuracy where it matters, in standard errors of the record's harmonics, is
-#: checked at the estimate (`truncation_z`).
-ORBIT_ERROR_TOL = 1e-3
+#: The engine's own acceptance bound on the HB error estimate (a relative state error): a
+#: guard against gross failure only. The model's accuracy where it matters, in standard
+#: errors of the record's harmonics, is checked at the estimate (`branches`).
+ORBIT_ERROR_TOL = 1e-2
 ORBIT_NEWTON_TOL = 1e-10
 SWEEP_SPAN = 0.1  # relative frequency span of the up- and down-sweep
 SWEEP_STEPS = 24
@@ -167,20 +172,41 @@ def nonlinear_acceleration_transient(system, frequency_hz, force_coeffs, *,
 # ------------------------------------------------------------------- branches at the estimate
 
 
+# Starts tried, in order, where continuation from the previous step fails: the linear
+# response scaled by these factors (Newton from the linear response alone missed the upper
+# orbit just past a softening fold, 1106 Hz on the bundled resonance drive; 1.5x found it).
+JUMP_SCALES = (1.0, 1.5, 0.7, 2.0, 1.25, 3.0)
+
+
 def swept_orbit(system, frequency_hz, force_coeffs, direction):
     """The orbit (`PeriodicOrbit`) a stepped sine reaches at `frequency_hz` sweeping up
-    (direction +1, from (1 - SWEEP_SPAN) f in `SWEEP_STEPS` steps) or down (-1)."""
+    (direction +1, from (1 - SWEEP_SPAN) f in `SWEEP_STEPS` steps) or down (-1).
+
+    Each step starts from the previous step's orbit (natural continuation). Past a fold the
+    branch the sweep was on ends and Newton fails there; a stepped sine then jumps to the
+    orbit that remains, and so does the model: such a step starts afresh from the linear
+    response scaled by each of `JUMP_SCALES` in turn until one converges."""
     fs = frequency_hz * (1.0 - direction * SWEEP_SPAN
                          * (1.0 - jnp.arange(SWEEP_STEPS + 1) / SWEEP_STEPS))
-    z0 = _unknowns(linear_harmonics(system, fs[0], force_coeffs), fs[0], ORBIT_HARMONICS)
+    scales = jnp.asarray((0.0,) + JUMP_SCALES)
+
+    def fresh(f):
+        return jax.lax.stop_gradient(_unknowns(linear_harmonics(system, f, force_coeffs), f,
+                                               ORBIT_HARMONICS))
 
     def step(z, f):
-        orbit = orbit_of(system, f, force_coeffs, z)
-        return jnp.where(orbit.converged, orbit.unknowns, z), None
+        lin = fresh(f)
 
-    # A step whose Newton fails keeps the previous orbit as the next start; only the orbit
-    # at the record's frequency has to converge.
-    z, _ = jax.lax.scan(step, jax.lax.stop_gradient(z0), fs[:-1])
+        def attempt(c):
+            k, zk, _ = c
+            orbit = orbit_of(system, f, force_coeffs, jnp.where(k == 0, z, scales[k] * lin))
+            return k + 1, orbit.unknowns, orbit.converged
+
+        _, zk, ok = jax.lax.while_loop(lambda c: (~c[2]) & (c[0] < scales.size), attempt,
+                                       (0, z, jnp.asarray(False)))
+        return jnp.where(ok, zk, z), None
+
+    z, _ = jax.lax.scan(step, fresh(fs[0]), fs)
     return orbit_of(system, frequency_hz, force_coeffs, jax.lax.stop_gradient(z))
 
 
@@ -207,7 +233,9 @@ def _branch_kernel(system, freq, force, measured, sweep):
             sw < 0, d, a)), meas, up, down)
         wide = _method(2 * ORBIT_HARMONICS)
         z32 = wide.from_coefficients(_method(), fit[3], 6)
-        a32 = acceleration_of(orbit_of(system, f, fc, z32, 2 * ORBIT_HARMONICS), f, h_f)
+        o32 = orbit_of(system, f, fc, z32, 2 * ORBIT_HARMONICS)
+        # No 32-harmonic orbit: the truncation error is unknown (nan; the fit is gated).
+        a32 = jnp.where(o32.converged, acceleration_of(o32, f, h_f), jnp.nan)
         return fit[:3], up[:3], down[:3], a32 - fit[0]
 
     return jax.vmap(one)(freq, force, measured, sweep)

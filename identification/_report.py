@@ -102,8 +102,27 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     if profile:
         unc, lin = profile_intervals(result, unc)
     branch = record_branches(problem, result.theta)
+    gate_truncation(result, branch, [d.name for d in data])
     return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin,
                                 branch)
+
+
+# An orbit record whose model truncation error (16 against 32 harmonics) exceeds this many
+# standard errors makes the fit not converged: the model, not the data, would set the answer.
+TRUNCATION_GATE = 1.0
+
+
+def gate_truncation(result, branch: dict, names) -> None:
+    """Mark `result` (a `FitResult`) not converged where a record's orbit model is not
+    accurate to `TRUNCATION_GATE` standard errors at the estimate (or its check failed)."""
+    bad = {names[i]: b["orbit_truncation_error_std"] for i, b in branch.items()
+           if not b["orbit_truncation_error_std"] <= TRUNCATION_GATE}
+    if bad:
+        result.add_model_issue(
+            "the periodic-orbit model's truncation error at the estimate exceeds "
+            f"{TRUNCATION_GATE:g} standard error(s) for "
+            + ", ".join(f"'{n}' ({z:.2g})" for n, z in bad.items())
+            + " (16 against 32 harmonics; nan: the 32-harmonic orbit failed)")
 
 
 def record_branches(problem: Problem, theta) -> dict:

@@ -75,8 +75,18 @@ def _stage_lines(fr) -> list[str]:
     st = fr.stage1
     if not st:
         return []
-    return [f"Staged fit: first {st['records']} record(s) ({st['stage']}) from "
-            f"{st['starts']} quasi-random starts over the prior's 95 % region: "
+    est = st.get("first_estimate") or {}
+    if est.get("estimate"):
+        first = (f"First estimate: {est['summary']}. Every start was moved onto it through "
+                 "the model's linearisation (closest point in the prior's metric).")
+        where = " on that resonance"
+    else:
+        first = (f"No first estimate from the records ({est['why_not']}); the starts are "
+                 "spread over the prior alone." if est.get("why_not") else None)
+        where = ""
+    return ([first] if first else []) + [
+            f"Staged fit: first {st['records']} record(s) ({st['stage']}) from "
+            f"{st['starts']} quasi-random starts over the prior's 95 % region{where}: "
             f"{st['reached_best']} reached the best cost ({st['distinct_optima']} distinct "
             f"optim{'um' if st['distinct_optima'] == 1 else 'a'}); the full fit started from "
             + ("it." if st.get("full_fit_starts", 1) == 1 else

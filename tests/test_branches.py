@@ -69,3 +69,19 @@ def test_the_model_fits_each_record_on_its_own_branch(swept_records):
         # sensitivity to the shaker's harmonic distortion remains); the other is hundreds off
         assert z_own < 6.0
         assert z_other > 100.0
+
+
+@pytest.mark.parametrize("frequency", [1099.0, 1106.0])
+def test_a_sweep_past_a_fold_jumps_to_the_orbit_that_remains(frequency):
+    """Below the lower fold (1101.2 Hz) a down-sweep has left the upper branch, above the
+    upper fold (1103.6 Hz) an up-sweep has left the lower one: each jumps, as a stepped sine
+    does, and lands on the only orbit there, the one the other sweep reaches continuously."""
+    from identification._orbit_model import acceleration_of, swept_orbit
+
+    system = bsfs_jax.build_system(bsfs_jax.load_params(idn.DATA_DIR / "resonance.toml"))
+    fc = jnp.asarray([-100j])
+    up, down = (swept_orbit(system, frequency, fc, d) for d in (1.0, -1.0))
+    assert bool(up.converged) and bool(down.converged)
+    assert bool(up.stable) and bool(down.stable)
+    a_up, a_down = (np.asarray(acceleration_of(o, frequency, 1))[0] for o in (up, down))
+    assert abs(a_up - a_down) < 1e-6 * abs(a_down)
