@@ -64,9 +64,14 @@ def draw_drive(kind: str, drive: int):
     p = bsfs_jax.preset().replace("thermal.speed_rpm", SPEED)
     names = SETS[kind]
     truth = {}
+    from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
+
+    derived = {"nut_k": lambda q: nut_hertz_k(q), "bearing_k": lambda q: bearing_hertz_k(q),
+               "screw_k": lambda q: screw_stiffness(q) / 1e6}  # keys the preset leaves unset
     for name in names:
         fp = idn.FIT_PARAMETERS[name]
-        value = float(p.get(fp.key))
+        value = p.get(fp.key)
+        value = float(derived[name](p) if value is None else value)
         if name.endswith("_preload"):
             value *= rng.uniform(0.5, 1.0)
         else:
