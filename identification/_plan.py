@@ -52,12 +52,32 @@ PLAN_RATIO = 0.3
 STEPPED = (100, 150, 250, 400, 600, 800, 950, 1050, 1150, 1300, 1700, 2500)
 
 
-def candidate_plans(include_nonlinear: bool = False) -> list[TestPlan]:
+# Sines of a through-resonance plan, as fractions of the first natural frequency: two of
+# them within +-10 % of it, where the joints' nonlinearity and the damping show.
+RESONANCE_RATIOS = (0.62, 0.84, 0.95, 1.03, 1.24)
+
+
+def resonance_plan(resonance_hz: float, speed_rpm: float = 2000.0) -> TestPlan:
+    """100 N stepped sines (0.5 s each, swept up) around the first resonance at
+    `resonance_hz` (`RESONANCE_RATIOS`), and a 5 N chirp 50-2500 Hz that locates it."""
+    sines = tuple(PlannedRecord(round(r * resonance_hz, 1), 100.0, speed_rpm, 0.5)
+                  for r in RESONANCE_RATIOS)
+    chirp = PlannedRecord(float("nan"), 5.0, speed_rpm, 1.0, "chirp", 50.0, 2500.0)
+    return TestPlan(f"through the resonance: 5 sines 0.62-1.24 x {resonance_hz:.0f} Hz, "
+                    "100 N + chirp", sines + (chirp,))
+
+
+def candidate_plans(include_nonlinear: bool = False,
+                    resonance_hz: float | None = None) -> list[TestPlan]:
     """The default candidates: the paper's test and richer ones (see `bsfs plan-test`).
 
     `include_nonlinear` adds a plan with 3000 N records, whose Fisher information needs the
     periodic-orbit model (a minute of compilation); it is never needed to determine the
     default or the preload parameters, which the 100 N stepped sine determines.
+    `resonance_hz` (the prior's first natural frequency) adds `resonance_plan`: sines near
+    the resonance, whose Fisher information also comes from the periodic-orbit model. The
+    sines are placed relative to the prior's resonance; in the test, place them relative to
+    the one the chirp measures (`bsfs identify` reports it as the first estimate).
     """
     paper = tuple(PlannedRecord(f, 100.0, 2000.0, 2.0) for f in (100.0, 120.0, 150.0))
     speeds = tuple(PlannedRecord(f, 100.0, s, 2.0) for s in (1000.0, 2000.0, 3000.0)
@@ -73,6 +93,8 @@ def candidate_plans(include_nonlinear: bool = False) -> list[TestPlan]:
              TestPlan("stepped sine 100-2500 Hz, 100 N", stepped),
              TestPlan("chirp 50-2500 Hz, 5 N, 1 s", (chirp,)),
              TestPlan("5 sines off resonance + chirp 50-2500 Hz", few + (chirp,))]
+    if resonance_hz is not None:
+        plans.append(resonance_plan(resonance_hz))
     if include_nonlinear:
         plans.append(TestPlan("stepped sine + 3000 N + 3 speeds", rich))
     return plans

@@ -82,3 +82,22 @@ def test_starts_move_onto_the_measured_resonance_and_keep_their_spread(resonance
     moved = np.asarray(moved)
     d = np.max(np.abs(moved[:, None] - moved[None]), axis=-1)
     assert np.min(d + np.eye(len(moved)) * 1e9) > 0.05
+
+
+def test_plan_test_weighs_a_plan_through_the_resonance():
+    """`plan-test`'s through-resonance candidate: sines within +-10 % of the prior's first
+    resonance, weighed with the model a fit would use there (the periodic orbit)."""
+    prior = bsfs_jax.preset()
+    f1 = float(bsfs_jax.modes(bsfs_jax.build_system(
+        prior.replace("thermal.speed_rpm", 2000.0))).frequencies_hz[0])
+    plans = idn.candidate_plans(resonance_hz=f1)
+    plan = plans[-1]
+    assert plan.name.startswith("through the resonance")
+    sines = [r.frequency_hz for r in plan.records if r.excitation == "sine"]
+    assert sum(abs(f / f1 - 1.0) <= 0.1 for f in sines) == 2
+    names, std, _, problem = idn.fisher_std(plan, prior, idn.PRELOAD_FIT)
+    near = [i for i, d in enumerate(problem.data)
+            if not hasattr(d, "accelerance") and abs(d.frequency_hz / f1 - 1.0) <= 0.1]
+    assert [problem.models[i] for i in near] == ["nonlinear", "nonlinear"]
+    assert np.all(np.isfinite(std)) and np.all(std < 1.0)
+    assert len(idn.candidate_plans()) == len(plans) - 1  # only on request

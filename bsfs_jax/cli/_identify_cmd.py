@@ -78,6 +78,10 @@ def register(sub) -> None:
     t.add_argument("--all-plans", action="store_true",
                    help="also a plan with 3000 N records (its Fisher information needs the "
                    "periodic-orbit model: about a minute more)")
+    t.add_argument("--no-resonance", action="store_true",
+                   help="leave out the through-resonance plan (100 N sines within +-10 %% of "
+                   "the prior's first resonance; its Fisher information needs the "
+                   "periodic-orbit model)")
     t.add_argument("--out", required=True, metavar="DIR")
     t.set_defaults(func=run_plan)
 
@@ -213,7 +217,13 @@ def run_plan(args) -> int:
     names = _fit_names(args.fit)
     out = out_dir(args.out)
     try:
-        result = idn.plan_test(prior, names, idn.candidate_plans(args.all_plans),
+        f1 = None
+        if not args.no_resonance:
+            from .. import build_system, modes
+
+            f1 = float(modes(build_system(
+                prior.replace("thermal.speed_rpm", 2000.0))).frequencies_hz[0])
+        result = idn.plan_test(prior, names, idn.candidate_plans(args.all_plans, f1),
                                accel_snr_db=args.noise_db, force_snr_db=args.noise_db + 5.0)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
