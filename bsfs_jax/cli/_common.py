@@ -83,6 +83,9 @@ def load_params_from_args(args):
     for item in getattr(args, "set", []) or []:
         if "=" not in item:
             raise CLIError(f"--set expects SECTION.KEY=VALUE, got '{one_line(item)}'")
+        if any(ord(c) < 32 or ord(c) == 127 for c in item):
+            raise CLIError(f"--set '{one_line(item)}' contains a control character (a line "
+                           "break or tab); give SECTION.KEY=VALUE on one line")
         name, text = (part.strip() for part in item.split("=", 1))
         if text.lower() in ("true", "false"):
             value = text.lower() == "true"

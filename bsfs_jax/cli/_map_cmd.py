@@ -87,8 +87,9 @@ def register(sub) -> None:
                    help="largest n of period-n orbits looked for (16)")
     p.add_argument("--max-blocks", type=count(1, 1000), default=8,
                    help="continuation blocks an unresolved point may get (8)")
-    p.add_argument("--block-periods", type=count(16, 10**6), default=256,
-                   help="forcing periods per continuation block (256)")
+    # A block is cut into 8 spectral segments of at least 4 periods (`VerifySettings`).
+    p.add_argument("--block-periods", type=count(32, 10**6), default=256,
+                   help="forcing periods per continuation block (256; at least 32)")
     p.add_argument("--no-bifurcations", action="store_true",
                    help="skip the continuation of each row's periodic branch")
     p.add_argument("--ds", type=positive_float, default=0.05,
