@@ -56,6 +56,8 @@ class FitResult:
     # Why the model itself cannot be trusted at the estimate (a record without a model
     # orbit, a truncation error beyond `TRUNCATION_GATE`): each makes the fit not converged.
     model_issues: list = dataclasses.field(default_factory=list)
+    # Model values per record at the estimate (`Problem.model_harmonics`), set by `fit`.
+    model: list | None = None
 
     def add_model_issue(self, text: str) -> None:
         self.model_issues.append(text)
@@ -229,8 +231,8 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
                 break
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
                                options, weights)
-    bad = [d.name for d, m in zip(result.problem.data,
-                                  result.problem.model_harmonics(result.theta))
+    result.model = result.problem.model_harmonics(result.theta)
+    bad = [d.name for d, m in zip(result.problem.data, result.model)
            if not np.all(np.isfinite(m))]
     if bad:
         result.add_model_issue(

@@ -193,12 +193,8 @@ def first_mode(theta, data: FitData, structure: Structure, group: int):
     """(f1 [Hz], modal damping ratio of mode 1) of the model at theta, linearised about the
     unforced equilibrium of speed group `group` (as `bsfs_jax.modes`)."""
     k, c, m = _matrices(bsfs_jax.build_system(params_at(theta, data, structure, group)))
-    inv = 1.0 / jnp.sqrt(jnp.diag(m))
-    ks = k * inv[:, None] * inv[None, :]
-    lam, vec = jnp.linalg.eigh(0.5 * (ks + ks.T))
-    omega = jnp.sqrt(jnp.abs(lam[0]))
-    phi = vec[:, 0] * inv
-    return omega / (2 * jnp.pi), phi @ c @ phi / (2 * omega)
+    modes = bsfs_jax.Modes.from_matrices(k, c, jnp.diag(m), jnp.zeros(3))
+    return modes.frequencies_hz[0], modes.damping_ratios[0]
 
 
 @eqx.filter_jit

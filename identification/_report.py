@@ -54,7 +54,10 @@ class IdentificationResult:
         return self.problem.params_at(np.asarray(self.fit.theta), speed)
 
     def model_harmonics(self):
-        return self.problem.model_harmonics(self.fit.theta)
+        """Model values per record at the estimate (computed once, by `fit`)."""
+        if self.fit.model is None:
+            self.fit.model = self.problem.model_harmonics(self.fit.theta)
+        return self.fit.model
 
 
 def measurement_data(record):
@@ -102,7 +105,7 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     if profile:
         unc, lin = profile_intervals(result, unc)
     branch = record_branches(problem, result.theta)
-    gate_truncation(result, branch, [d.name for d in data])
+    gate_truncation(result, branch, [d.name for d in problem.data])
     return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin,
                                 branch)
 
@@ -131,6 +134,7 @@ def record_branches(problem: Problem, theta) -> dict:
     sweep direction that reaches it, and the model's truncation error in standard errors
     (16 against 32 harmonics, largest over the usable harmonics)."""
     from ._choice import _z
+    from ._groups import sweep_direction
     from ._orbit_model import branches
 
     out = {}
@@ -143,8 +147,6 @@ def record_branches(problem: Problem, theta) -> dict:
         recs = [problem.data[i] for i in idx]
         args = ([d.frequency_hz for d in recs], np.stack([d.force for d in recs]),
                 np.stack([d.acceleration for d in recs]))
-        from ._groups import sweep_direction
-
         labels, evidence, trunc = branches(system, *args,
                                            [sweep_direction(d) for d in recs])
         for j, i in enumerate(idx):

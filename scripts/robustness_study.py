@@ -66,8 +66,8 @@ def draw_drive(kind: str, drive: int):
     truth = {}
     from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
-    derived = {"nut_k": lambda q: nut_hertz_k(q), "bearing_k": lambda q: bearing_hertz_k(q),
-               "screw_k": lambda q: screw_stiffness(q) / 1e6}  # keys the preset leaves unset
+    derived = {"nut_k": nut_hertz_k, "bearing_k": bearing_hertz_k,  # keys the preset leaves
+               "screw_k": lambda q: screw_stiffness(q) / 1e6}  # unset: its geometry's values
     for name in names:
         fp = idn.FIT_PARAMETERS[name]
         value = p.get(fp.key)

@@ -86,6 +86,22 @@ class Modes(eqx.Module):
     mass: jax.Array
     equilibrium: jax.Array
 
+    @classmethod
+    def from_matrices(cls, k, c, m, x_eq) -> "Modes":
+        """Modes of the tangent stiffness `k`, damping `c` and masses `m` (3,) about `x_eq`
+        (the undamped problem, mass-normalised shapes, modal damping ratios)."""
+        inv_sqrt_m = 1.0 / jnp.sqrt(m)
+        k_sym = k * inv_sqrt_m[:, None] * inv_sqrt_m[None, :]
+        k_sym = 0.5 * (k_sym + k_sym.T)
+        lam, vecs = jnp.linalg.eigh(k_sym)
+        omega = jnp.sqrt(jnp.abs(lam))
+        shapes = vecs * inv_sqrt_m[:, None]
+        # Fix the sign: largest component of each shape positive (deterministic output).
+        idx = jnp.argmax(jnp.abs(shapes), axis=0)
+        shapes = shapes * jnp.sign(shapes[idx, jnp.arange(3)])[None, :]
+        zeta = jnp.einsum("ji,jk,ki->i", shapes, c, shapes) / (2.0 * omega)
+        return cls(omega / (2 * jnp.pi), shapes, zeta, k, c, m, x_eq)
+
     @property
     def static_stiffness(self):
         """Axial stiffness at the nut, P / x_n [N/m] (the drive's static stiffness)."""
@@ -109,18 +125,7 @@ def modes(model, static_force_n=0.0, *, throw: bool = True) -> Modes:
 
     `throw` as in `equilibrium`.
     """
-    k, c, m, x_eq = linearise(model, static_force_n, throw=throw)
-    inv_sqrt_m = 1.0 / jnp.sqrt(m)
-    k_sym = k * inv_sqrt_m[:, None] * inv_sqrt_m[None, :]
-    k_sym = 0.5 * (k_sym + k_sym.T)
-    lam, vecs = jnp.linalg.eigh(k_sym)
-    omega = jnp.sqrt(jnp.abs(lam))
-    shapes = vecs * inv_sqrt_m[:, None]
-    # Fix the sign: largest component of each shape positive (deterministic output).
-    idx = jnp.argmax(jnp.abs(shapes), axis=0)
-    shapes = shapes * jnp.sign(shapes[idx, jnp.arange(3)])[None, :]
-    zeta = jnp.einsum("ji,jk,ki->i", shapes, c, shapes) / (2.0 * omega)
-    return Modes(omega / (2 * jnp.pi), shapes, zeta, k, c, m, x_eq)
+    return Modes.from_matrices(*linearise(model, static_force_n, throw=throw))
 
 
 def linear_frf(model, frequencies_hz, static_force_n=0.0, *, throw: bool = True):
