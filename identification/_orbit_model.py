@@ -243,9 +243,10 @@ def _branch_kernel(system, freq, force, measured, sweep):
 
 def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
     """Per record (lists): the branch label of the orbit the record is fitted on ("single",
-    "upper", "lower", or "unresolved" where the orbits could not be computed or the fitted
-    one is neither of the swept ones); a dict of the evidence (fundamental amplitudes
-    [m/s^2] of the fitted, up-swept and down-swept orbits, their stability); and the fitted
+    "upper", "lower", or "unresolved" where the orbits could not be computed, the fitted
+    one is unstable or it is neither of the swept ones); a dict of the evidence
+    (fundamental amplitudes [m/s^2] of the fitted, up-swept and down-swept orbits, their
+    stability); and the fitted
     orbit's truncation error (R, H) (2 x `ORBIT_HARMONICS` harmonics against
     `ORBIT_HARMONICS`). One compiled program for all of it."""
     (a_fit, s_fit, ok_fit), up, down, trunc = (
@@ -260,7 +261,8 @@ def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
         ev = dict(fitted_amplitude_m_s2=amp(a_fit), up_sweep_amplitude_m_s2=amp(up[0]),
                   down_sweep_amplitude_m_s2=amp(down[0]), fitted_stable=bool(s_fit[i]),
                   up_sweep_stable=bool(up[1][i]), down_sweep_stable=bool(down[1][i]))
-        if not (ok_fit[i] and up[2][i] and down[2][i]):
+        if not (ok_fit[i] and up[2][i] and down[2][i] and s_fit[i]):
+            # an orbit failed, or the fitted one is unstable (no record can stay on it)
             label = "unresolved"
         elif same(up[0], down[0]):
             label = "single" if same(a_fit, up[0]) else "unresolved"

@@ -108,8 +108,8 @@ def _branch_lines(res) -> list[str]:
     for i, b in sorted(br.items()):
         if b["branch"] == "unresolved":
             out.append(f"Record '{names[i]}': its fitted orbit is not one that a stepped sine "
-                       "reaches sweeping up or down (or an orbit failed); check the record "
-                       "and the fit's branch.")
+                       "reaches sweeping up or down (or it is unstable, or an orbit failed); "
+                       "check the record and the fit's branch.")
         if b["orbit_truncation_error_std"] > MODEL_ERROR:
             out.append(f"Record '{names[i]}': the orbit model's truncation error is "
                        f"{b['orbit_truncation_error_std']:.2g} standard errors (above "

@@ -85,3 +85,19 @@ def test_a_sweep_past_a_fold_jumps_to_the_orbit_that_remains(frequency):
     assert bool(up.stable) and bool(down.stable)
     a_up, a_down = (np.asarray(acceleration_of(o, frequency, 1))[0] for o in (up, down))
     assert abs(a_up - a_down) < 1e-6 * abs(a_down)
+
+
+def test_a_record_started_between_the_branches_is_not_labelled_with_one():
+    """A measured state between the two stable orbits leads Newton to the unstable middle
+    orbit: no record can stay there, and the label says unresolved, not a branch."""
+    from identification._orbit_model import acceleration_of, swept_orbit
+
+    system = bsfs_jax.build_system(bsfs_jax.load_params(idn.DATA_DIR / "resonance.toml"))
+    fc = np.asarray([-100j])
+    up, down = (np.asarray(acceleration_of(swept_orbit(system, FREQUENCY, jnp.asarray(fc), d),
+                                           FREQUENCY, 1))[0] for d in (1.0, -1.0))
+    labels, evidence, _ = branches(system, [FREQUENCY], fc[None],
+                                   np.asarray([[up + 0.6 * (down - up)]]))
+    assert not evidence[0]["fitted_stable"]
+    assert abs(up) < evidence[0]["fitted_amplitude_m_s2"] < abs(down)
+    assert labels == ["unresolved"]
