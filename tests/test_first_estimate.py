@@ -101,3 +101,19 @@ def test_plan_test_weighs_a_plan_through_the_resonance():
     assert [problem.models[i] for i in near] == ["nonlinear", "nonlinear"]
     assert np.all(np.isfinite(std)) and np.all(std < 1.0)
     assert len(idn.candidate_plans()) == len(plans) - 1  # only on request
+
+
+def test_plan_test_cli_lists_the_resonance_plan(tmp_path):
+    import json
+
+    from bsfs_jax.cli import main
+
+    fit = ",".join(idn.PRELOAD_FIT)
+    assert main(["plan-test", "--fit", fit, "--out", str(tmp_path / "a")]) == 0
+    plans = json.loads((tmp_path / "a" / "plan.json").read_text())["plans"]
+    res = [p for p in plans if p["name"].startswith("through the resonance")]
+    assert len(res) == 1 and all(np.isfinite(v) for v in res[0]["expected_std"].values())
+    assert main(["plan-test", "--fit", fit, "--no-resonance", "--out",
+                 str(tmp_path / "b")]) == 0
+    plans = json.loads((tmp_path / "b" / "plan.json").read_text())["plans"]
+    assert not any(p["name"].startswith("through the resonance") for p in plans)

@@ -219,10 +219,17 @@ def run_plan(args) -> int:
     try:
         f1 = None
         if not args.no_resonance:
+            import equinox as eqx
+
             from .. import build_system, modes
 
-            f1 = float(modes(build_system(
-                prior.replace("thermal.speed_rpm", 2000.0))).frequencies_hz[0])
+            # One compiled program (eagerly the equilibrium's Newton and the eigenproblem
+            # were about 40 small ones).
+            first = eqx.filter_jit(lambda p: modes(build_system(p), throw=False))
+            f1 = float(first(prior.replace("thermal.speed_rpm", 2000.0)).frequencies_hz[0])
+            if not f1 > 0:
+                raise ValueError("the prior's first natural frequency could not be computed "
+                                 "(its static equilibrium failed); use --no-resonance")
         result = idn.plan_test(prior, names, idn.candidate_plans(args.all_plans, f1),
                                accel_snr_db=args.noise_db, force_snr_db=args.noise_db + 5.0)
     except ValueError as exc:
