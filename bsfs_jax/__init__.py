@@ -17,6 +17,7 @@ import os
 # keep equinox's default. Read by equinox at its import: this must come first.
 os.environ.setdefault("EQX_ON_ERROR", "nan")
 
+from ._programs import cached_jit as cached_jit
 from .machine import Modes as Modes
 from .machine import Trajectory as Trajectory
 from .machine import equilibrium as equilibrium

@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import bsfs_jax
+
 from ._measurement import chord_corrections, linearisation_error, receptance
 
 # The bound on a model's predicted error, in standard errors of each entry. Per entry it is
@@ -39,7 +41,7 @@ def is_frf(d) -> bool:
     return hasattr(d, "accelerance")
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def _sine_kernel(system, freq, harmonics, force, errors: bool):
     """One compiled call for all sine records of a speed: joint amplitudes of the linear
     response, the model's transfer (accelerance) per harmonic, and where `errors` the first

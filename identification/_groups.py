@@ -22,7 +22,6 @@ import dataclasses
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 # A padded sine record sits at this (harmless) frequency with zero force.
@@ -166,11 +165,11 @@ def build_data(problem, is_frf):
             nl[j] = models[i] == "nonlinear"
             sweep[j] = sweep_direction(data[i])
         ff, fA, fS = _frf_arrays(problem, frf_idx, lines)
-        groups.append(GroupData(jnp.asarray(sf), jnp.asarray(sF), jnp.asarray(sA),
-                                jnp.asarray(sS), jnp.asarray(first), jnp.asarray(nl),
-                                jnp.asarray(orbit_index), jnp.asarray(sweep),
-                                jnp.asarray(ff), jnp.asarray(fA),
-                                jnp.asarray(fS)))
+        groups.append(GroupData(np.asarray(sf), np.asarray(sF), np.asarray(sA),
+                                np.asarray(sS), np.asarray(first), np.asarray(nl),
+                                np.asarray(orbit_index), np.asarray(sweep),
+                                np.asarray(ff), np.asarray(fA),
+                                np.asarray(fS)))
         for j, i in enumerate(sine_idx):
             layout[i] = (gi, 0, np.concatenate([pos + j * h + np.arange(h),
                                                 pos + (rows + j) * h + np.arange(h)]), j)
@@ -185,9 +184,9 @@ def build_data(problem, is_frf):
         pos += 2 * lines
     sigma = problem.prior_sigma
     fit_data = FitData(
-        problem.base, jnp.asarray(problem.speeds, float), jnp.asarray(problem.prior_values),
-        jnp.asarray(np.zeros(problem.n_params) if sigma is None else 1.0 / np.asarray(sigma)),
-        jnp.asarray(problem.info_floor, float), tuple(groups))
+        problem.base, np.asarray(problem.speeds, float), np.asarray(problem.prior_values),
+        np.asarray(np.zeros(problem.n_params) if sigma is None else 1.0 / np.asarray(sigma)),
+        np.asarray(problem.info_floor, float), tuple(groups))
     structure = Structure(tuple(problem.keys),
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),

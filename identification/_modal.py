@@ -197,7 +197,7 @@ def first_mode(theta, data: FitData, structure: Structure, group: int):
     return modes.frequencies_hz[0], modes.damping_ratios[0]
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def _mode_and_jacobian(thetas, data, structure, group):
     """ln(f1, zeta1) (B, 2) and its Jacobian (B, 2, p) at a batch of thetas."""
     def fn(th):

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -116,13 +115,13 @@ def _residual_jvp(structure, primals, tangents):
     return r, j @ tangents[0]  # the data are never differentiated
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def residual_and_jacobian(theta, data: FitData, structure: Structure):
     """(residual, Jacobian): one compiled program per structure and layout."""
     return _rj(theta, data, structure)
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def predictions(theta, data: FitData, structure: Structure):
     return predict(theta, data, structure)
 
@@ -133,7 +132,7 @@ def static_compliance(theta, data: FitData, structure: Structure, group: int):
     return jnp.real(receptance(system, jnp.zeros(1))[0, 2])
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def compliance_and_gradient(theta, data: FitData, structure: Structure):
     """(compliance (G,), its gradient (G, p)) at every speed group."""
     fns = [functools.partial(static_compliance, data=data, structure=structure, group=g)

@@ -118,8 +118,12 @@ def orbit_of(system, frequency_hz, force_coeffs, unknowns, harmonics: int = ORBI
 
 def acceleration_of(orbit, frequency_hz, n_harmonics: int):
     """The nut's acceleration harmonics (n_harmonics,) of an HB orbit: i k w V_k."""
-    h = orbit.method.harmonics
-    z = orbit.unknowns
+    return _acceleration_of_unknowns(orbit.unknowns, frequency_hz, n_harmonics,
+                                     orbit.method.harmonics)
+
+
+def _acceleration_of_unknowns(z, frequency_hz, n_harmonics: int,
+                              h: int = ORBIT_HARMONICS):
     a = z[6:6 + 6 * h].reshape(h, 6)[:n_harmonics, 5]
     b = z[6 + 6 * h:].reshape(h, 6)[:n_harmonics, 5]
     k = jnp.arange(1, n_harmonics + 1)
@@ -136,8 +140,8 @@ def nonlinear_acceleration(system, frequency_hz, force_coeffs, measured_acc=None
     if sweep is not None:
         assert harmonics == ORBIT_HARMONICS, "a swept start has ORBIT_HARMONICS harmonics"
         z_meas = measured_start(system, frequency_hz, force_coeffs, measured_acc, harmonics)
-        z_sweep = swept_orbit(system, frequency_hz, force_coeffs,
-                              jnp.where(sweep < 0, -1.0, 1.0)).unknowns
+        z_sweep = swept_unknowns(system, frequency_hz, force_coeffs,
+                                 jnp.where(sweep < 0, -1.0, 1.0))
         z0 = jax.lax.stop_gradient(jnp.where(sweep != 0, z_sweep, z_meas))
         orbit = orbit_of(system, frequency_hz, force_coeffs, z0, harmonics)
         return acceleration_of(orbit, frequency_hz, h_f), orbit.converged
@@ -178,21 +182,24 @@ def nonlinear_acceleration_transient(system, frequency_hz, force_coeffs, *,
 JUMP_SCALES = (1.0, 1.5, 0.7, 2.0, 1.25, 3.0)
 
 
-def swept_orbit(system, frequency_hz, force_coeffs, direction):
-    """The orbit (`PeriodicOrbit`) a stepped sine reaches at `frequency_hz` sweeping up
+def swept_unknowns(system, frequency_hz, force_coeffs, direction):
+    """HB unknowns of the orbit a stepped sine reaches at `frequency_hz` sweeping up
     (direction +1, from (1 - SWEEP_SPAN) f in `SWEEP_STEPS` steps) or down (-1).
 
     Each step starts from the previous step's orbit (natural continuation). Past a fold the
     branch the sweep was on ends and Newton fails there; a stepped sine then jumps to the
     orbit that remains, and so does the model: such a step starts afresh from the linear
-    response scaled by each of `JUMP_SCALES` in turn until one converges."""
+    response scaled by each of `JUMP_SCALES` in turn until one converges. The last step is
+    at `frequency_hz` itself, so its unknowns are the swept orbit's (where it converged).
+    Not differentiated: the orbit's derivative comes from `orbit_of` started here."""
+    system, frequency_hz, force_coeffs = jax.lax.stop_gradient(
+        (system, frequency_hz, force_coeffs))
     fs = frequency_hz * (1.0 - direction * SWEEP_SPAN
                          * (1.0 - jnp.arange(SWEEP_STEPS + 1) / SWEEP_STEPS))
     scales = jnp.asarray((0.0,) + JUMP_SCALES)
 
     def fresh(f):
-        return jax.lax.stop_gradient(_unknowns(linear_harmonics(system, f, force_coeffs), f,
-                                               ORBIT_HARMONICS))
+        return _unknowns(linear_harmonics(system, f, force_coeffs), f, ORBIT_HARMONICS)
 
     def step(z, f):
         lin = fresh(f)
@@ -207,7 +214,14 @@ def swept_orbit(system, frequency_hz, force_coeffs, direction):
         return jnp.where(ok, zk, z), None
 
     z, _ = jax.lax.scan(step, fresh(fs[0]), fs)
-    return orbit_of(system, frequency_hz, force_coeffs, jax.lax.stop_gradient(z))
+    return z
+
+
+def swept_orbit(system, frequency_hz, force_coeffs, direction):
+    """The orbit (`PeriodicOrbit`) a stepped sine reaches at `frequency_hz` sweeping up
+    (direction +1) or down (-1): `orbit_of` from `swept_unknowns`."""
+    z = swept_unknowns(system, frequency_hz, force_coeffs, direction)
+    return orbit_of(system, frequency_hz, force_coeffs, z)
 
 
 @eqx.filter_jit
@@ -217,26 +231,32 @@ def swept_state(system, frequency_hz, force_coeffs, direction):
     return orbit.state, orbit.converged
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def _branch_kernel(system, freq, force, measured, sweep):
     """Per record: the fitted, up-swept and down-swept orbits' (acceleration, stable,
     converged), and the fitted orbit's truncation error (2 x `ORBIT_HARMONICS` harmonics,
     started from the fitted orbit, minus the fitted acceleration)."""
     def one(f, fc, am, sw):
         h_f = fc.shape[-1]
-        orbits = (orbit_of(system, f, fc, measured_start(system, f, fc, am)),
-                  swept_orbit(system, f, fc, 1.0), swept_orbit(system, f, fc, -1.0))
-        meas, up, down = ((acceleration_of(o, f, h_f), o.stable, o.converged, o.unknowns)
-                          for o in orbits)
+        # One Newton in the program for the two sweeps, one for the three orbits (started
+        # from the measured state and from each sweep's end), one at 32 harmonics: each
+        # inlined Newton is a large part of the compilation.
+        z_up, z_down = jax.vmap(lambda d: swept_unknowns(system, f, fc, d))(
+            jnp.asarray([1.0, -1.0]))
+        starts = jnp.stack([measured_start(system, f, fc, am), z_up, z_down])
+        orbits = jax.vmap(lambda z: orbit_of(system, f, fc, z))(starts)
+        acc = jax.vmap(lambda z: _acceleration_of_unknowns(z, f, h_f))(orbits.unknowns)
+        every = (acc, orbits.stable, orbits.converged, orbits.unknowns)
         # A record with a sweep direction is fitted on that sweep's orbit.
-        fit = jax.tree_util.tree_map(lambda a, u, d: jnp.where(sw > 0, u, jnp.where(
-            sw < 0, d, a)), meas, up, down)
+        pick = jnp.where(sw > 0, 1, jnp.where(sw < 0, 2, 0))
+        fit = tuple(x[pick] for x in every)
+        up, down = (tuple(x[i] for x in every[:3]) for i in (1, 2))
         wide = _method(2 * ORBIT_HARMONICS)
         z32 = wide.from_coefficients(_method(), fit[3], 6)
         o32 = orbit_of(system, f, fc, z32, 2 * ORBIT_HARMONICS)
         # No 32-harmonic orbit: the truncation error is unknown (nan; the fit is gated).
         a32 = jnp.where(o32.converged, acceleration_of(o32, f, h_f), jnp.nan)
-        return fit[:3], up[:3], down[:3], a32 - fit[0]
+        return fit[:3], up, down, a32 - fit[0]
 
     return jax.vmap(one)(freq, force, measured, sweep)
 

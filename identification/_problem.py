@@ -339,6 +339,10 @@ class Problem:
                 p = p.replace(key, values[i])
         return p
 
+    def system_at(self, theta, speed):
+        """The `System` at `speed` for the fitted theta (one compiled build)."""
+        return _build(self.params_at(np.asarray(theta, float), speed))
+
     # -- model and residual ----------------------------------------------------------------
     def predict(self, theta, fit_data=None):
         """Model per speed group: [(sine harmonics (R, H), FRF accelerance (L,))]."""

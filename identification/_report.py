@@ -143,7 +143,7 @@ def record_branches(problem: Problem, theta) -> dict:
                if d.speed_rpm == s and problem.models[i] == "nonlinear"]
         if not idx:
             continue
-        system = bsfs_jax.build_system(problem.params_at(np.asarray(theta), s))
+        system = problem.system_at(theta, s)
         recs = [problem.data[i] for i in idx]
         args = ([d.frequency_hz for d in recs], np.stack([d.force for d in recs]),
                 np.stack([d.acceleration for d in recs]))

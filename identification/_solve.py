@@ -31,12 +31,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
+
+import bsfs_jax
 
 from ._groups import Structure
 from ._lm import NULL_RTOL
@@ -161,7 +162,7 @@ def _solve_lane(theta0, free, data, step_tol, structure, options):
                 steps=sol.stats["num_steps"], codes=codes)
 
 
-@eqx.filter_jit
+@bsfs_jax.cached_jit
 def _solve_lanes(theta0, free, data, step_tol, structure, options):
     lane = lambda t, f, d: _solve_lane(t, f, d, step_tol, structure, options)
     if options.lanes == "vmap":

@@ -192,13 +192,14 @@ def write_json(path, data) -> None:
     write_bytes_atomic(path, (json.dumps(jsonable(data), indent=2) + "\n").encode())
 
 
-def save_figure(fig, path) -> None:
-    """Save a matplotlib figure atomically (PNG, 130 dpi)."""
+def save_figure(fig, path, *, tight: bool = True) -> None:
+    """Save a matplotlib figure atomically (PNG, 130 dpi). `tight`: crop to the drawn
+    artists (a second drawing pass); False for figures laid out by `tight_layout`."""
     import io
 
     buf = io.BytesIO()
     fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=130,
-                bbox_inches="tight")
+                bbox_inches="tight" if tight else None)
     write_bytes_atomic(path, buf.getvalue())
 
 

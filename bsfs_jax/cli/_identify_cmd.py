@@ -139,7 +139,7 @@ def run_identify(args) -> int:
     if sines:
         fig = fit_figure([d.record for d, _, _ in sines], [c for _, _, c in sines],
                          [d.frequency_hz for d, _, _ in sines], [m for _, m, _ in sines])
-        save_figure(fig, out / "fit.png")
+        save_figure(fig, out / "fit.png", tight=False)
         written.append(out / "fit.png")
     frfs = [(d, c) for d, m, c in zip(res.data, res.problem.models, res.model_harmonics())
             if m == "frf"]

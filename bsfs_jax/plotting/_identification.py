@@ -52,10 +52,12 @@ def fit_figure(records, model_coeffs, frequencies_hz, models=None, *, periods: f
             ax.set_xlabel("frequency [Hz]")
     # One legend for all panels, between the title and the first row: never over data.
     handles = [h for ax in axes[0] for h in ax.get_legend_handles_labels()[0]]
+    # Heights in inches from the top: title 0.08-0.33, legend 0.36-0.6, panels below.
+    fig.suptitle("Worktable acceleration: measured vs identified model", fontsize=11,
+                 y=1.0 - 0.08 / height, va="top")
     fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=8,
                frameon=False, bbox_to_anchor=(0.5, 1.0 - 0.36 / height))
-    fig.suptitle("Worktable acceleration: measured vs identified model", fontsize=11)
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.3 / height))
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.62 / height))
     return fig
 
 

@@ -1,0 +1,81 @@
+"""`bsfs_jax.cached_jit`: programs kept across processes (jax.export) give the same answers
+as `filter_jit`, and fall back to it wherever they cannot be kept."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import bsfs_jax
+from bsfs_jax import _programs
+
+
+@bsfs_jax.cached_jit
+def _poly(x, data, power: int):
+    return {"value": jnp.sum(data["w"] * x**power), "grad": jax.grad(
+        lambda y: jnp.sum(data["w"] * y**power))(x)}
+
+
+class _Box(eqx.Module):
+    v: jax.Array
+
+
+@bsfs_jax.cached_jit
+def _boxed(x):
+    return _Box(2.0 * x)  # an output that jax.export cannot write
+
+
+@pytest.fixture
+def cache_dir(tmp_path, monkeypatch):
+    monkeypatch.setattr(_programs, "_program_dir", lambda: tmp_path / "programs")
+    monkeypatch.setattr(_programs, "_loaded", {})
+    return tmp_path
+
+
+def _files(folder):
+    return sorted((folder / "programs").glob("*.jaxexport"))
+
+
+def test_kept_program_agrees_and_is_reused(cache_dir):
+    x = np.linspace(0.0, 1.0, 5)
+    data = {"w": np.arange(5.0)}
+    want = eqx.filter_jit(_poly.__wrapped__)(x, data, 3)
+    got = _poly(x, data, 3)
+    assert len(_files(cache_dir)) == 1
+    np.testing.assert_allclose(got["value"], want["value"], rtol=1e-15)
+    np.testing.assert_allclose(got["grad"], want["grad"], rtol=1e-15)
+    # A new process: nothing in memory, the file is read back (and not exported again).
+    _programs._loaded.clear()
+    stamp = _files(cache_dir)[0].stat().st_mtime_ns
+    again = _poly(x, data, 3)
+    np.testing.assert_allclose(again["grad"], want["grad"], rtol=1e-15)
+    assert _files(cache_dir)[0].stat().st_mtime_ns == stamp
+    # Another static argument or shape is another program.
+    _poly(x, data, 2)
+    _poly(np.ones(3), {"w": np.ones(3)}, 3)
+    assert len(_files(cache_dir)) == 3
+
+
+def test_unreadable_file_is_replaced(cache_dir):
+    x = np.ones(4)
+    _poly(x, {"w": np.ones(4)}, 2)
+    (path,) = _files(cache_dir)
+    path.write_bytes(b"not a program")
+    _programs._loaded.clear()
+    out = _poly(x, {"w": np.ones(4)}, 2)
+    assert float(out["value"]) == 4.0
+    assert path.read_bytes() != b"not a program"
+
+
+def test_unexportable_output_falls_back(cache_dir):
+    out = _boxed(np.ones(3))
+    assert isinstance(out, _Box)
+    np.testing.assert_array_equal(out.v, 2.0)
+    assert _files(cache_dir) == []
+
+
+def test_without_cache_dir_it_is_filter_jit(monkeypatch):
+    monkeypatch.setattr(_programs, "_program_dir", lambda: None)
+    out = _poly(np.ones(2), {"w": np.ones(2)}, 1)
+    assert float(out["value"]) == 2.0
