@@ -15,11 +15,10 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
-ORDER = ["bench_simulate.py", "bench_sweep.py", "bench_orbits.py", "bench_identify.py",
-         "bench_fit_solver.py",
-         "bench_design.py"]
-RESULT_ORDER = ["simulate.md", "b1_sweep.md", "orbits.md", "identify.md", "fit_solver.md",
-                "design.md"]
+ORDER = ["bench_cold.py", "bench_simulate.py", "bench_sweep.py", "bench_orbits.py",
+         "bench_identify.py", "bench_resonance.py", "bench_fit_solver.py", "bench_design.py"]
+RESULT_ORDER = ["cold.md", "simulate.md", "b1_sweep.md", "orbits.md", "identify.md",
+                "resonance.md", "fit_solver.md", "design.md"]
 
 
 def assemble() -> str:
@@ -31,9 +30,9 @@ def assemble() -> str:
         "the peer's time over ours. Shared 2-core machines drift, so compare ratios, not seconds.",
         "",
     ]
-    # `--quick` results of bench_sweep.py (b1_sweep_quick.md) are a short check, not a result.
+    # `--quick` results (b1_sweep_quick.md) and `--only` runs of bench_cold.py (cold_partial.md) are checks, not results.
     found = sorted((p for p in (HERE / "results").glob("*.md")
-                    if not p.stem.endswith("_quick")),
+                    if not p.stem.endswith(("_quick", "_partial"))),
                    key=lambda p: (RESULT_ORDER.index(p.name) if p.name in RESULT_ORDER else 99,
                                   p.name))
     for path in found:

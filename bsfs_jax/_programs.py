@@ -10,7 +10,8 @@ model, the branch kernel), against 1.5 s running the programs.
 
 - the function (module and name) and a digest of the source files of its package and of
   `bsfs_jax` (any edit of the code makes new keys),
-- the versions of jax, jaxlib and the numerical libraries, the backend and 64-bit mode,
+- the versions of jax, jaxlib and the numerical libraries, the backend, 64-bit mode, the
+  default matmul precision and `EQX_ON_ERROR` (equinox's runtime checks),
 - the static arguments and the layout (tree structure, shapes, dtypes) of the traced ones.
 
 A later process deserialises the program and compiles it, which jax's persistent cache
@@ -90,6 +91,8 @@ def _key(fn, static, treedef, leaves) -> str | None:
     for part in (fn.__module__, fn.__qualname__, _package_digest("bsfs_jax"),
                  _package_digest(package) if package in sys.modules else "",
                  _environment(), jax.default_backend(), str(jax.config.jax_enable_x64),
+                 str(jax.config.jax_default_matmul_precision),
+                 os.environ.get("EQX_ON_ERROR", ""),  # read by equinox while tracing
                  static_text, tree_text,
                  repr([(np.shape(x), str(x.dtype), _weak(x)) for x in leaves])):
         h.update(part.encode())

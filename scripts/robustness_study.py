@@ -111,6 +111,11 @@ def cost_at(problem, values: dict) -> float:
 def failure_cause(res, cost_fit, cost_truth) -> str | None:
     fr = res.fit
     if not fr.converged:
+        if fr.model_issues:  # the model's accuracy at the estimate (`FitResult.model_issues`)
+            issue = fr.model_issues[0]
+            return ("model truncation error above the gate" if "truncation" in issue else
+                    "no model at the estimate" if "no steady state" in issue else
+                    "model issue: " + issue[:80])
         if fr.model_choice == "unsettled":
             return "model choice unsettled"
         if not fr.remaining_step < 0.01:
