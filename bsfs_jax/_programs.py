@@ -109,6 +109,7 @@ def _export(fn, static, treedef, leaves):
         args, kwargs = eqx.combine(jax.tree_util.tree_unflatten(treedef, xs), static)
         return fn(*args, **kwargs)
 
+    flat.__name__ = flat.__qualname__ = fn.__name__
     specs = [jax.ShapeDtypeStruct(np.shape(x), x.dtype, weak_type=_weak(x))
              for x in leaves]
     # Only this jax version ever reads the file back: custom calls without a
@@ -117,12 +118,22 @@ def _export(fn, static, treedef, leaves):
         export.DisabledSafetyCheck.custom_call(".*")])(*specs)
 
 
+def _jit_call(exp, name: str):
+    """The deserialised program as a jitted function named like the original (compile
+    events and profiles then name it)."""
+    def run(*xs):
+        return exp.call(*xs)
+
+    run.__name__ = run.__qualname__ = name
+    return jax.jit(run)
+
+
 def _caller(fn, static, treedef, leaves, key: str, folder: Path):
     path = folder / f"{key}.jaxexport"
     if path.exists():
         try:
             exp = export.deserialize(bytearray(path.read_bytes()))
-            return jax.jit(exp.call)
+            return _jit_call(exp, fn.__name__)
         except Exception:  # noqa: BLE001 - unreadable or stale: export it again
             pass
     exp = _export(fn, static, treedef, leaves)
@@ -132,7 +143,7 @@ def _caller(fn, static, treedef, leaves, key: str, folder: Path):
         write_bytes_atomic(path, bytes(payload))
     except OSError:
         pass  # a read-only cache: the program still runs
-    return jax.jit(exp.call)
+    return _jit_call(exp, fn.__name__)
 
 
 def cached_jit(fn):

@@ -56,9 +56,12 @@ def no_persistent_cache():
     """A cache hit is not a compile event: start from empty in-process caches (another test
     in this process may have compiled the same layout) and without the persistent cache
     (CI shares one between test files), so that real compilations are counted."""
+    from bsfs_jax import _programs
+
     was = jax.config.jax_enable_compilation_cache
     jax.config.update("jax_enable_compilation_cache", False)
     jax.clear_caches()
+    _programs._loaded.clear()  # programs kept by `cached_jit` are compiled again too
     yield
     jax.config.update("jax_enable_compilation_cache", was)
 
