@@ -20,22 +20,17 @@ writes benchmarks/results/cold.json and .md (a section of BENCHMARKS.md).
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-RESULTS = HERE / "results"
-CLI = "import sys; from bsfs_jax.cli import main; sys.exit(main(sys.argv[1:]))"
-PRELOAD_FIT = "nut_preload,bearing_preload,c_b,c_s,c_n"
+from _cli import RESULTS, cold_warm_runs, write_result  # noqa: E402
+from bench_identify import PRELOAD_FIT  # noqa: E402
 
 # (name, arguments without --out, cold target [s] or None, writes an --out folder)
 COMMANDS = [
@@ -63,62 +58,10 @@ COMMANDS = [
 COMPILE_SHARE, WARM_SHARE = 0.40, 0.40
 
 
-def run(args, cache, out):
-    """One fresh process: (exit code, wall s, stats dict)."""
-    env = dict(os.environ)
-    env["BSFS_CACHE_DIR"] = str(cache)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(
-        os.pathsep)
-    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
-        env["BSFS_COMPILE_STATS"] = fh.name
-    cmd = [sys.executable, "-c", CLI, *args]
-    if out is not None:
-        cmd += ["--out", str(out)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    try:
-        stats = json.loads(Path(env["BSFS_COMPILE_STATS"]).read_text())
-    except (OSError, ValueError):
-        stats = {"compiles": None, "compile_s": None, "peak_rss_mb": None}
-    finally:
-        Path(env["BSFS_COMPILE_STATS"]).unlink(missing_ok=True)
-    if proc.returncode not in (0, 4):
-        tail = (proc.stderr or proc.stdout)[-600:]
-        print(f"  bsfs {' '.join(args)}: exit {proc.returncode}\n{tail}", flush=True)
-    return proc.returncode, wall, stats
-
-
 def measure(name, args, target, writes, repeats, tmp):
-    rows = []
-    for k in range(repeats):
-        cache = tmp / f"cache_{k}_{name.replace(' ', '_')}"
-        row = {}
-        for kind in ("cold", "warm"):
-            out = None
-            if writes == "file":
-                out = tmp / f"{name}_{k}_{kind}.csv"
-            elif writes:
-                out = tmp / f"{name.replace(' ', '_')}_{k}_{kind}"
-            code, wall, st = run(args, cache, out)
-            comp = st.get("compile_s")
-            row[kind] = dict(wall_s=wall, compile_s=comp, compiles=st.get("compiles"),
-                             run_s=None if comp is None else wall - comp,
-                             peak_rss_mb=st.get("peak_rss_mb"), exit_code=code)
-            print(f"  {name} ({kind}): {wall:.1f} s, compile "
-                  f"{comp if comp is None else round(comp, 1)} s in {st.get('compiles')} "
-                  f"programs, exit {code}", flush=True)
-        rows.append(row)
-
-    def med(kind, key):
-        xs = [r[kind][key] for r in rows if r[kind][key] is not None]
-        return float(statistics.median(xs)) if xs else None
-
-    res = {kind: {key: med(kind, key) for key in ("wall_s", "compile_s", "run_s", "compiles",
-                                                  "peak_rss_mb")}
-           for kind in ("cold", "warm")}
-    for kind in ("cold", "warm"):
-        res[kind]["exit_code"] = rows[-1][kind]["exit_code"]
+    out = {True: "dir", False: None, "file": ".csv"}[writes]
+    res, _ = cold_warm_runs(args, repeats, tmp, name.replace(" ", "_").replace("-", ""),
+                            out=out, check=False)
     cold, warm = res["cold"], res["warm"]
     share = None if cold["compile_s"] is None else cold["compile_s"] / cold["wall_s"]
     res.update(name=name, command="bsfs " + " ".join(args), target_cold_s=target,
@@ -186,12 +129,8 @@ def main(argv=None) -> int:
             rows.append(measure(name, cmd, target, writes, args.repeats, Path(tmp)))
     result = dict(date=info["date_utc"][:16], machine=info, repeats=args.repeats,
                   commands=rows)
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "cold" if only is None else "cold_partial"
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2) + "\n")
-    md = markdown(result)
-    (RESULTS / f"{name}.md").write_text(md)
-    print(md)
+    write_result(name, result, markdown(result))
     print(f"wrote {RESULTS / name}.json and .md ({time.perf_counter() - t0:.0f} s)")
     return 0
 

@@ -76,7 +76,6 @@ JSON fields (stable; the README's status table reads some through scripts/status
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -85,9 +84,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
+
+from _cli import RESULTS, _median, cold_warm_runs, env, run_cli, write_result  # noqa: E402
 
 SCHEMA = 2
 FIT = ("screw_k", "c_n")
@@ -133,16 +133,6 @@ KEYS = {
               "determined", "parameters", "preloads"],
     "demo": ["commands", "seconds", "compile_s", "exit_codes", "total_s"],
 }
-
-
-def _env(cache=None):
-    env = dict(os.environ)
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        env.setdefault(var, "1")  # as the CLI does (bsfs_jax/cli/_common.py)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    if cache is not None:
-        env["BSFS_CACHE_DIR"] = str(cache)
-    return env
 
 
 # ------------------------------------------------------------------------ parts (children)
@@ -352,65 +342,12 @@ def run_part(name, *extra, cache=None):
     default none); (its result dict, process wall seconds)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--part", name, *map(str, extra)]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(cache), cwd=ROOT)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env(cache), cwd=ROOT)
     wall = time.perf_counter() - t0
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     if proc.returncode or not lines:
         raise SystemExit(f"part {name} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
     return json.loads(lines[-1][len("RESULT "):]), wall
-
-
-CLI = "import sys; from bsfs_jax.cli import main; sys.exit(main(sys.argv[1:]))"
-
-
-def run_cli(args, cache):
-    """`bsfs ARGS` in a fresh process with the compilation cache `cache`: (exit, seconds,
-    compile stats: compiles, compile_s, peak_rss_mb from jax's compile events)."""
-    cmd = [sys.executable, "-c", CLI, *args, "--no-progress"] if args[0] == "identify" else \
-        [sys.executable, "-c", CLI, *args]
-    env = _env(cache)
-    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
-        env["BSFS_COMPILE_STATS"] = fh.name
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    if proc.returncode not in (0, 4):  # 4: identify ran but did not converge
-        raise SystemExit(f"bsfs {' '.join(args)} failed (exit {proc.returncode}):\n"
-                         f"{proc.stderr[-3000:]}")
-    stats = json.loads(Path(env["BSFS_COMPILE_STATS"]).read_text())
-    os.unlink(env["BSFS_COMPILE_STATS"])
-    return proc.returncode, wall, stats
-
-
-def _median(xs):
-    return float(statistics.median(xs))
-
-
-def cold_warm_runs(args, repeats, tmp, tag):
-    """Each repeat: `bsfs ARGS` with an empty compilation cache (cold), then again with the
-    cache that run filled (warm). Medians of wall, compile and run (= wall - compile)
-    seconds, the compilations, and the last cold run's output folder."""
-    rows = []
-    for k in range(repeats):
-        cache = tmp / f"cache_{tag}{k}"
-        row = {}
-        for kind in ("cold", "warm"):
-            out = tmp / f"{tag}{k}_{kind}"
-            code, wall, st = run_cli([*args, "--out", str(out)], cache)
-            row[kind] = dict(wall_s=wall, compile_s=st["compile_s"],
-                             run_s=wall - st["compile_s"], compiles=st["compiles"],
-                             peak_rss_mb=st["peak_rss_mb"], exit_code=code)
-            print(f"  bsfs {' '.join(args)} ({kind}): {wall:.1f} s, compile "
-                  f"{st['compile_s']:.1f} s in {st['compiles']} programs (exit {code})",
-                  flush=True)
-        rows.append(row)
-    med = {kind: {key: _median([r[kind][key] for r in rows])
-                  for key in ("wall_s", "compile_s", "run_s", "compiles", "peak_rss_mb")}
-           for kind in ("cold", "warm")}
-    for kind in ("cold", "warm"):
-        med[kind]["wall_s_runs"] = [r[kind]["wall_s"] for r in rows]
-        med[kind]["exit_code"] = rows[-1][kind]["exit_code"]
-    return med, tmp / f"{tag}{repeats - 1}_cold"
 
 
 def identify_runs(args, repeats, tmp, tag):
@@ -769,11 +706,7 @@ def main(argv=None):
     missing = check_keys(result)
     assert not missing, missing
     name = "identify_quick" if args.quick else "identify"
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2) + "\n")
-    md = markdown(result)
-    (RESULTS / f"{name}.md").write_text(md)
-    print(md)
+    write_result(name, result, markdown(result))
     print(f"wrote {RESULTS / name}.json and .md ({time.perf_counter() - t_start:.0f} s)")
     return 0
 

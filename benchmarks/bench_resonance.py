@@ -34,9 +34,9 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
-from bench_identify import PRELOAD_FIT, cold_warm_runs  # noqa: E402
+from _cli import RESULTS, cold_warm_runs, write_result  # noqa: E402
+from bench_identify import PRELOAD_FIT  # noqa: E402
 
-RESULTS = HERE / "results"
 TARGET_COLD_S, TARGET_WARM_S = 30.0, 8.0
 
 
@@ -105,11 +105,7 @@ def main(argv=None) -> int:
             rows.append(run_set(name, sets[name], args.repeats, Path(tmp)))
     result = dict(date=info["date_utc"][:16].replace("T", " "), machine=info,
                   repeats=args.repeats, sets=rows)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "resonance.json").write_text(json.dumps(result, indent=2) + "\n")
-    md = markdown(result)
-    (RESULTS / "resonance.md").write_text(md)
-    print(md)
+    write_result("resonance", result, markdown(result))
     print(f"wrote {RESULTS / 'resonance'}.json and .md ({time.perf_counter() - t0:.0f} s)")
     return 0
 
