@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from ._anchors import MAX_ROUNDS, anchored, settle
 from ._lm import NO_INFORMATION_STD, gn_step_sigma
 from ._modal import modal_estimate, modal_starts
 from ._problem import Problem
@@ -77,7 +78,8 @@ class FitResult:
     def convergence_text(self) -> str:
         agree, total = self.starts_agreeing, self.starts_total
         via = (f" (through {sum(s['same_minimum'] for s in self.starts)} of "
-               f"{len(self.starts)} first-stage optima)" if self.stage1 else "")
+               f"{len(self.starts)} first-stage optima)"
+               if self.stage1 and self.stage1.get("stage") else "")
         if self.converged:
             return (f"converged: the remaining Gauss-Newton step is {self.remaining_step:.1e} "
                     f"of its standard error; {agree}/{total} starts reached the same "
@@ -146,28 +148,59 @@ FULL_STARTS = 8  # most distinct first-stage optima the full fit starts from
 _DISTINCT = 0.05  # scaled distance beyond which two optima are distinct
 
 
-def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOptions):
+def first_estimate(problem: Problem, points):
+    """The data-driven first estimate (`_modal.py`): the first resonance read off the
+    records and the prior moved onto it (theta_m). Where the problem chooses its models
+    itself, they are chosen again at theta_m (`Problem.rechosen`): a record near the
+    *measured* resonance is not on the linear model because the prior's resonance was
+    elsewhere (measured on a default-set robustness drive whose resonance was 30 % above
+    the prior's: the stage-1 records, chosen at the prior, cost 1.9e6 at the truth, and
+    every stage-1 start stopped at its step limit).
+    `points` (start 0 the prior) are moved onto the resonance too (one program for all;
+    moved[0] is theta_m). Returns (problem, estimate or None, why_not, moved points or None,
+    mismatch)."""
+    estimate, why_not = modal_estimate(problem)
+    if estimate is None:
+        return problem, None, why_not, None, None
+    moved, mismatch = modal_starts(problem, estimate, points, start_metric(problem))
+    theta_m = np.asarray(moved[0], float)
+    if problem.chooses_models and np.all(np.isfinite(theta_m)):
+        problem = problem.rechosen(theta_m)
+    return problem, estimate, why_not, moved, mismatch
+
+
+def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOptions,
+                  estimate=None, why_not: str | None = None, moved=None, mismatch=None):
     """Starts for a fit with periodic-orbit records: `STAGE1_STARTS` (or `starts`, if more)
     quasi-random starts, each moved onto the first resonance read off the records where
-    they bracket it (`_modal.py`: the data-driven first estimate), then carried to the
-    optimum of the records the cheaper models explain (`Problem.without_orbit_records`;
-    every record linearised where none is left), as one batched solve. The full fit starts
+    they bracket it (`estimate`, `first_estimate`: the data-driven first estimate), then
+    carried to the optimum of the records the cheaper models explain
+    (`Problem.without_orbit_records`), as one batched solve. Where no record is left on
+    the cheaper models, there is no first stage: the full fit starts from the first
+    max(`starts`, `FULL_STARTS`) of those starts. The full fit starts
     from each distinct optimum (lowest cost first, at most max(`starts`, `FULL_STARTS`));
     each carries the number of quasi-random starts that reached it (its basin), so
     agreement among starts is counted in the original starts.
     Returns (points, basin counts, summary dict for the report)."""
     first = problem.without_orbit_records()
-    stage = "records on the linear and first-order models"
-    if first is None:
-        first, stage = problem.linearised(), "every record on the linearised model"
-    pts = start_points(first, max(starts, STAGE1_STARTS), seed)
-    # The data-driven first estimate: every start moved onto the measured resonance.
-    estimate, why_not = modal_estimate(problem)
+    keep = max(1, starts, FULL_STARTS)
+    pts = start_points(problem, max(starts, STAGE1_STARTS), seed)
+    # The data-driven first estimate: every start moved onto the measured resonance
+    # (`moved`: already done by `first_estimate`).
     modal = dict(estimate=None, why_not=why_not)
     if estimate is not None:
-        pts, mismatch = modal_starts(first, estimate, pts, start_metric(first))
+        if moved is None:
+            moved, mismatch = modal_starts(problem, estimate, pts, start_metric(problem))
+        pts = moved
         modal = dict(estimate=estimate.as_dict(), summary=estimate.summary(),
                      mismatch_se=mismatch)
+    if first is None:
+        # No record on the cheaper models: a first stage on linearised records would fit
+        # the wrong model (measured on two records at a fold: its single optimum had 4x
+        # the true damping, and the full fit from it stopped in a local minimum at 1.5e6
+        # times the cost at the truth). The full fit starts from the quasi-random starts.
+        return pts[:keep], [1] * keep, dict(stage=None, records=0, starts=keep,
+                                            first_estimate=modal)
     out = solve(np.stack(pts), True, first.fit_data, first.structure,
                 dataclasses.replace(options, step_tol=0.1))
     cost = np.where(np.isfinite(out["cost"]), out["cost"], np.inf)
@@ -187,8 +220,7 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
             basin.append(1)
     if not distinct:  # every start failed: the prior
         distinct, basin = [order[0]], [1]
-    keep = max(1, starts, FULL_STARTS)
-    summary = dict(stage=stage, records=len(first.data), starts=len(pts),
+    summary = dict(stage="records on the linear and first-order models", records=len(first.data), starts=len(pts),
                    reached_best=int(same.sum()), distinct_optima=len(distinct),
                    full_fit_starts=min(keep, len(distinct)), first_estimate=modal)
     return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary
@@ -210,10 +242,16 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     """
     t0 = time.perf_counter()
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
-    stage1, weights = None, None
+    stage1, weights, first = None, None, (problem, None, None, None, None)
+    if warm_start:
+        # The models per record chosen at the measured resonance (`first_estimate`), and
+        # the staged fit's starts moved onto it.
+        first = first_estimate(problem, start_points(problem, max(starts, STAGE1_STARTS),
+                                                     seed))
+        problem = first[0]
     if warm_start and "nonlinear" in problem.models:
         # A staged fit: the cheap records first, from many starts (`staged_starts`).
-        points, weights, stage1 = staged_starts(problem, starts, seed, options)
+        points, weights, stage1 = staged_starts(problem, starts, seed, options, *first[1:])
     else:
         points = start_points(problem, starts, seed)
     if theta0 is not None:
@@ -249,7 +287,15 @@ def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> 
     fit's basin counts; 1 each by default)."""
     t0 = time.perf_counter()
     rows = full_used_mask(problem)
-    out = solve(np.stack(points), True, problem.fit_data, problem.structure, options)
+    datas, settled = problem.fit_data, None
+    if problem.structure.sweeps:
+        # Swept records: each lane's sweep computed at its start, then again at its result
+        # until the fitted orbit is the one the sweep reaches there (`_anchors.py`).
+        datas = [anchored(problem.fit_data, th, problem.structure) for th in points]
+    out = solve(np.stack(points), True, datas, problem.structure, options)
+    if problem.structure.sweeps:
+        settled = settle(out, datas, problem.structure,
+                         lambda th, ds: solve(th, True, ds, problem.structure, options))
     keep = problem._residual_rows(out["residual"].shape[1])
     max_std = no_information_std(problem)
     runs = []
@@ -263,11 +309,14 @@ def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> 
                          optimizer_converged=bool(step < options.step_tol),
                          stop=out["stop"][k],
                          starts_in_basin=1 if weights is None else int(weights[k])))
+        if settled is not None:
+            runs[-1]["on_swept_orbit"] = bool(settled[k])
     best = min(runs, key=lambda d: d["cost"] if np.isfinite(d["cost"]) else np.inf)
     for run in runs:
         run["same_minimum"] = bool(abs(run["cost"] - best["cost"])
                                    <= SAME_COST_RTOL * max(1.0, best["cost"]))
     theta, r, j, step = best["theta"], best["residual"], best["jacobian"], best["step"]
+    best_k = next(k for k, run in enumerate(runs) if run is best)
     for run in runs:
         run["theta"] = np.asarray(run["theta"]).tolist()
         del run["residual"], run["jacobian"], run["step"]
@@ -275,7 +324,14 @@ def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> 
     total = sum(run["starts_in_basin"] for run in runs)
     # The evidence at the returned point decides, not the optimiser's own stopping rule.
     converged = bool(step < STEP_TOL and (total == 1 or agree >= 2))
-    return FitResult(problem, np.asarray(theta), np.asarray(problem.values(np.asarray(theta))),
-                     float(best["cost"]), r, j, runs, converged,
-                     bool(best["optimizer_converged"]), step, best["steps"],
-                     time.perf_counter() - t0)
+    if settled is not None:  # the best lane's anchors go with the result
+        problem = problem.with_fit_data(datas[best_k])
+    result = FitResult(problem, np.asarray(theta),
+                       np.asarray(problem.values(np.asarray(theta))), float(best["cost"]), r,
+                       j, runs, converged, bool(best["optimizer_converged"]), step,
+                       best["steps"], time.perf_counter() - t0)
+    if settled is not None and not settled[best_k]:
+        result.add_model_issue(
+            "a swept record's fitted orbit is not the one its sweep reaches at the estimate "
+            f"after {MAX_ROUNDS} re-anchored solves (the estimate sits at a fold)")
+    return result

@@ -24,6 +24,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._orbit_model import ORBIT_HARMONICS
+
 # A padded sine record sits at this (harmless) frequency with zero force.
 _PAD_FREQUENCY_HZ = 100.0
 
@@ -44,8 +46,8 @@ class Structure:
     # Whether the first-order correction is in the program: where the models are chosen by
     # the predicted-error rule (any iteration may choose it) or forced to "first-order".
     first_order: bool = True
-    # Whether any periodic-orbit record carries a stepped sine's sweep direction (then the
-    # swept-orbit start is in the program, see `_orbit_model.nonlinear_acceleration`).
+    # Whether any periodic-orbit record carries a stepped sine's sweep direction (then its
+    # orbit starts from `GroupData.sine_anchor`, see `_anchors.py`).
     sweeps: bool = False
 
 
@@ -60,6 +62,10 @@ class GroupData(eqx.Module):
     sine_orbit: jax.Array  # (R,) bool: periodic-orbit (harmonic balance) model
     orbit_index: jax.Array  # (S,) int: the records whose orbit is computed (padded)
     sine_sweep: jax.Array  # (R,) +1 / -1: a stepped sine swept up / down; 0: not given
+    # (R, U) HB unknowns where each swept record's orbit starts (`_anchors.py`; zero: not
+    # anchored, the measured state instead); (R, 0) where no record is swept.
+    sine_anchor: jax.Array
+    sweep_index: jax.Array  # (W,) int: the swept orbit records (padded by repeating one)
     frf_freq: jax.Array  # (L,) FRF lines [Hz]
     frf_acc: jax.Array  # (L,) complex accelerance [m/s^2 per N]
     frf_scale: jax.Array  # (L, 2)
@@ -149,6 +155,8 @@ def build_data(problem, is_frf):
         h = problem.pad["harmonics"]
     groups, layout, pos = [], {}, 0
     pad = {} if problem.pad is None else problem.pad["counts"]
+    sweeps = any(sweep_direction(d) and m == "nonlinear" for d, m in zip(data, models))
+    width = 6 + 12 * ORBIT_HARMONICS if sweeps else 0
     for gi, s in enumerate(problem.speeds):
         sine_idx, frf_idx, orbit, n_lines = _members(problem, is_frf, s)
         rows, slots, lines = (max(a, b) for a, b in zip(
@@ -164,10 +172,13 @@ def build_data(problem, is_frf):
             first[j] = models[i] == "first-order"
             nl[j] = models[i] == "nonlinear"
             sweep[j] = sweep_direction(data[i])
+        swept = [j for j in orbit if sweep[j] != 0]
+        swept += [swept[0] if swept else 0] * (size_class(len(swept)) - len(swept))
         ff, fA, fS = _frf_arrays(problem, frf_idx, lines)
         groups.append(GroupData(np.asarray(sf), np.asarray(sF), np.asarray(sA),
                                 np.asarray(sS), np.asarray(first), np.asarray(nl),
                                 np.asarray(orbit_index), np.asarray(sweep),
+                                np.zeros((rows, width)), np.asarray(swept, int),
                                 np.asarray(ff), np.asarray(fA),
                                 np.asarray(fS)))
         for j, i in enumerate(sine_idx):
@@ -191,9 +202,7 @@ def build_data(problem, is_frf):
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),
                           tuple(bool(x) for x in problem.is_log), len(problem.speeds),
-                          problem.may_use_first_order,
-                          any(sweep_direction(d) and m == "nonlinear"
-                              for d, m in zip(data, models)))
+                          problem.may_use_first_order, sweeps)
     return fit_data, structure, layout
 
 

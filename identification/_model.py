@@ -53,12 +53,13 @@ def _sine_model(system, g, first_order: bool, sweeps: bool = False):
     if not g.orbit_index.shape[0]:
         return lin
     idx = g.orbit_index
-    if sweeps:
-        fn = lambda f, fc, am, sw: nonlinear_acceleration(system, f, fc, am, sweep=sw)
+    if sweeps:  # swept records start from their anchors (`_anchors.py`)
+        fn = lambda f, fc, am, z: nonlinear_acceleration(system, f, fc, am, start=z)
+        nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx],
+                              g.sine_anchor[idx])
     else:
-        fn = lambda f, fc, am, sw: nonlinear_acceleration(system, f, fc, am)
-    nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx],
-                          g.sine_sweep[idx])
+        fn = lambda f, fc, am: nonlinear_acceleration(system, f, fc, am)
+        nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx])
     nl = jnp.where(ok[:, None], nl, jnp.inf)
     # Padded slots repeat a real slot (the same value twice) or point at a record that is
     # not on the orbit model (masked below).

@@ -39,8 +39,9 @@ Where they differ the record's orbit is "upper" (the larger fundamental amplitud
 two) or "lower"; where they coincide it is the only one ("single").
 
 A record whose header gives a stepped sine's direction (`sweep = up` or `down`) is fitted
-on the orbit that sweep reaches (`swept_orbit` at every trial parameter set, as the test
-itself would), not on the one nearest its measurement.
+on the orbit that sweep reaches, not on the one nearest its measurement: Newton starts from
+its anchor (`start=`), the sweep's orbit at a nearby parameter set, and the fit checks at
+its result that this is still the orbit the sweep reaches (`_anchors.py`).
 """
 
 from __future__ import annotations
@@ -64,6 +65,10 @@ ORBIT_ERROR_TOL = 1e-2
 ORBIT_NEWTON_TOL = 1e-10
 SWEEP_SPAN = 0.1  # relative frequency span of the up- and down-sweep
 SWEEP_STEPS = 24
+# Newton iterations per sweep step: from the previous step's orbit it converges in 3-9
+# (measured through a 100 N resonance peak); a step that needs more is past a fold, and
+# each failed attempt at the 30 of `orbit_of` cost 30 iterations (1.1 s for one sweep).
+SWEEP_NEWTON_STEPS = 15
 _SCALE = np.asarray(BSFS_SCALE)
 
 
@@ -107,13 +112,16 @@ def measured_start(system, frequency_hz, force_coeffs, measured_acc,
     return _unknowns(x.at[0].multiply(ratio), frequency_hz, harmonics)
 
 
-def orbit_of(system, frequency_hz, force_coeffs, unknowns, harmonics: int = ORBIT_HARMONICS):
-    """The periodic orbit (`PeriodicOrbit`, harmonic balance) from HB unknowns."""
+def orbit_of(system, frequency_hz, force_coeffs, unknowns, harmonics: int = ORBIT_HARMONICS,
+             max_steps: int = 30):
+    """The periodic orbit (`PeriodicOrbit`, harmonic balance) from HB unknowns (at most
+    `max_steps` Newton iterations)."""
     forcing = _forcing(frequency_hz, force_coeffs)
     return periodic_orbit(bsfs_jax.vector_field, jnp.zeros(6), (system, forcing),
                           forcing.period, method=_method(harmonics),
                           scale=jnp.asarray(_SCALE), unknowns=unknowns,
-                          tol=ORBIT_NEWTON_TOL, adjoint=ImplicitForward(), throw=False)
+                          tol=ORBIT_NEWTON_TOL, max_steps=max_steps, adjoint=ImplicitForward(),
+                          throw=False)
 
 
 def acceleration_of(orbit, frequency_hz, n_harmonics: int):
@@ -131,25 +139,21 @@ def _acceleration_of_unknowns(z, frequency_hz, n_harmonics: int,
 
 
 def nonlinear_acceleration(system, frequency_hz, force_coeffs, measured_acc=None,
-                           harmonics: int = ORBIT_HARMONICS, sweep=None):
+                           harmonics: int = ORBIT_HARMONICS, start=None):
     """(acceleration harmonics (H,), ok flag) of the periodic steady state under the force
     harmonics, started from the measured state (`measured_start`; from the linear steady
-    state without `measured_acc`). `sweep` (traced; +1 up, -1 down, 0 none): where nonzero,
-    the orbit that a stepped sine sweeping that way reaches (`swept_orbit`) instead."""
+    state without `measured_acc`). `start` (traced HB unknowns, `ORBIT_HARMONICS`): where
+    given and not all zero, Newton starts there instead (a swept record's anchor: the orbit
+    its sweep reaches, `swept_unknowns`, computed at a nearby parameter set)."""
     h_f = force_coeffs.shape[-1]
-    if sweep is not None:
-        assert harmonics == ORBIT_HARMONICS, "a swept start has ORBIT_HARMONICS harmonics"
-        z_meas = measured_start(system, frequency_hz, force_coeffs, measured_acc, harmonics)
-        z_sweep = swept_unknowns(system, frequency_hz, force_coeffs,
-                                 jnp.where(sweep < 0, -1.0, 1.0))
-        z0 = jax.lax.stop_gradient(jnp.where(sweep != 0, z_sweep, z_meas))
-        orbit = orbit_of(system, frequency_hz, force_coeffs, z0, harmonics)
-        return acceleration_of(orbit, frequency_hz, h_f), orbit.converged
     if measured_acc is None:
         z0 = _unknowns(linear_harmonics(system, frequency_hz, force_coeffs), frequency_hz,
                        harmonics)
     else:
         z0 = measured_start(system, frequency_hz, force_coeffs, measured_acc, harmonics)
+    if start is not None:
+        assert harmonics == ORBIT_HARMONICS, "an anchor has ORBIT_HARMONICS harmonics"
+        z0 = jnp.where(jnp.any(start != 0), start, z0)
     z0 = jax.lax.stop_gradient(z0)
     orbit = orbit_of(system, frequency_hz, force_coeffs, z0, harmonics)
     return acceleration_of(orbit, frequency_hz, h_f), orbit.converged
@@ -206,7 +210,8 @@ def swept_unknowns(system, frequency_hz, force_coeffs, direction):
 
         def attempt(c):
             k, zk, _ = c
-            orbit = orbit_of(system, f, force_coeffs, jnp.where(k == 0, z, scales[k] * lin))
+            orbit = orbit_of(system, f, force_coeffs, jnp.where(k == 0, z, scales[k] * lin),
+                             max_steps=SWEEP_NEWTON_STEPS)
             return k + 1, orbit.unknowns, orbit.converged
 
         _, zk, ok = jax.lax.while_loop(lambda c: (~c[2]) & (c[0] < scales.size), attempt,

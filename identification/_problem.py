@@ -265,6 +265,20 @@ class Problem:
         """Whether `other` uses the same model per record and leaves out the same lines."""
         return same_choice(self, other)
 
+    def with_fit_data(self, fit_data) -> Problem:
+        """The same problem with other traced data of the same layout (a fit's anchors)."""
+        out = copy.copy(self)
+        out.fit_data = fit_data
+        return out
+
+    def anchored(self, theta) -> Problem:
+        """The same problem with its swept records' anchors computed at theta (`_anchors.py`;
+        itself where no record carries a sweep direction)."""
+        from ._anchors import anchored
+
+        return (self.with_fit_data(anchored(self.fit_data, theta, self.structure))
+                if self.structure.sweeps else self)
+
     def rj(self, theta, fit_data=None):
         """(residual, Jacobian) as numpy arrays (`residual`'s rows): one compiled program per
         structure and layout, shared by every problem of that layout."""

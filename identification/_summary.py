@@ -84,6 +84,11 @@ def _stage_lines(fr) -> list[str]:
         first = (f"No first estimate from the records ({est['why_not']}); the starts are "
                  "spread over the prior alone." if est.get("why_not") else None)
         where = ""
+    if st["stage"] is None:
+        return ([first] if first else []) + [
+            f"No first stage (every record is on the periodic-orbit model): the full fit "
+            f"started from {st['starts']} quasi-random starts over the prior's 95 % "
+            f"region{where}."]
     return ([first] if first else []) + [
             f"Staged fit: first {st['records']} record(s) ({st['stage']}) from "
             f"{st['starts']} quasi-random starts over the prior's 95 % region{where}: "

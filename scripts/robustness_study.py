@@ -103,7 +103,7 @@ def synth(params, drive: int):
 
 def cost_at(problem, values: dict) -> float:
     theta = problem.theta_of(np.asarray([values[n] for n in problem.names]))
-    r, _ = problem.rj(theta)
+    r, _ = problem.anchored(theta).rj(theta)  # swept records on their sweep's orbit there
     r = np.where(np.isfinite(r), r, 1e6)
     return 0.5 * float(r @ r)
 

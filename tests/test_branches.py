@@ -6,6 +6,7 @@ between its folds at 1101.2 and 1103.6 Hz (`bsfs continue --params data/resonanc
 sweeping up and the other sweeping down.
 """
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -101,3 +102,81 @@ def test_a_record_started_between_the_branches_is_not_labelled_with_one():
     assert not evidence[0]["fitted_stable"]
     assert abs(up) < evidence[0]["fitted_amplitude_m_s2"] < abs(down)
     assert labels == ["unresolved"]
+
+
+@pytest.fixture(scope="module")
+def swept_problem(swept_records):
+    _, data = swept_records
+    truth = bsfs_jax.load_params(idn.DATA_DIR / "resonance.toml")
+    return idn.Problem([data["up"], data["down"]], truth, ("c_n",), model="nonlinear")
+
+
+def test_swept_records_start_from_their_sweeps_orbit(swept_problem, swept_records):
+    """In the fit a swept record's orbit starts from its anchor, the orbit its sweep
+    reaches (`_anchors.py`), not from its measured state: with the headers swapped the
+    model of each record is the other branch, hundreds of standard errors off."""
+    from identification._anchors import anchored, same_orbits
+
+    pb = swept_problem
+    assert pb.structure.sweeps
+    theta = np.zeros(pb.n_params)
+    own = pb.anchored(theta)
+    model = own.model_harmonics(theta)
+    for d, m in zip(pb.data, model):
+        se = np.sqrt(d.acceleration_var[0])
+        assert np.max(np.abs([(m[0] - d.acceleration[0]).real / se[0],
+                              (m[0] - d.acceleration[0]).imag / se[1]])) < 6.0
+    # the anchors swapped between the two records: each record's model is the other orbit
+    (g,) = own.fit_data.groups
+    swapped = own.with_fit_data(eqx.tree_at(
+        lambda d: d.groups, own.fit_data,
+        (eqx.tree_at(lambda x: x.sine_anchor, g, np.asarray(g.sine_anchor)[::-1]),)))
+    other = swapped.model_harmonics(theta)
+    for d, m in zip(pb.data, other):
+        assert np.abs(m[0] - d.acceleration[0]) / np.max(np.sqrt(d.acceleration_var[0])) > 100
+    assert same_orbits(theta, own.fit_data, anchored(own.fit_data, theta, pb.structure),
+                       pb.structure)
+    assert not same_orbits(theta, swapped.fit_data, own.fit_data, pb.structure)
+
+
+def test_a_lane_on_a_stale_anchor_is_solved_again(swept_problem):
+    """`settle` re-anchors a lane whose fitted orbit is not the one its sweep reaches at
+    its result, and solves it again from there."""
+    from identification._anchors import settle
+
+    pb = swept_problem
+    theta = np.zeros((1, pb.n_params))
+    own = pb.anchored(theta[0]).fit_data
+    (g,) = own.groups
+    stale = eqx.tree_at(lambda d: d.groups, own,
+                        (eqx.tree_at(lambda x: x.sine_anchor, g,
+                                     np.asarray(g.sine_anchor)[::-1]),))
+    calls = []
+
+    def resolve(th, ds):
+        calls.append(ds)
+        return dict(theta=th, cost=np.ones(len(ds)), steps=np.full(len(ds), 2),
+                    stop=["again"] * len(ds))
+
+    out = dict(theta=theta.copy(), cost=np.ones(1), steps=np.full(1, 5), stop=["first"])
+    datas = [stale]
+    assert settle(out, datas, pb.structure, resolve) == [True]
+    assert len(calls) == 1 and out["steps"][0] == 7 and out["stop"] == ["again"]
+    np.testing.assert_array_equal(np.asarray(datas[0].groups[0].sine_anchor),
+                                  np.asarray(g.sine_anchor))
+
+
+def test_a_fit_of_swept_records_lands_on_their_branches(swept_problem):
+    """From quasi-random starts, a fit of the damping on the two records at the fold
+    converges, with each record on its own branch."""
+    from identification._report import record_branches
+
+    pb = swept_problem
+    res = idn.fit(pb, starts=4, seed=1)
+    assert res.converged, res.convergence_text
+    assert all(run.get("on_swept_orbit") for run in res.starts if run["same_minimum"])
+    labels = record_branches(res.problem, res.theta)
+    assert [labels[i]["branch"] for i in (0, 1)] == ["lower", "upper"]
+    truth = pb.values(np.zeros(1))[0]
+    sigma = np.sqrt(np.linalg.inv(res.jacobian.T @ res.jacobian)[0, 0]) * truth
+    assert abs(res.values[0] - truth) < 4 * sigma
