@@ -220,7 +220,8 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
             basin.append(1)
     if not distinct:  # every start failed: the prior
         distinct, basin = [order[0]], [1]
-    summary = dict(stage="records on the linear and first-order models", records=len(first.data), starts=len(pts),
+    summary = dict(stage="records on the linear and first-order models",
+                   records=len(first.data), starts=len(pts),
                    reached_best=int(same.sum()), distinct_optima=len(distinct),
                    full_fit_starts=min(keep, len(distinct)), first_estimate=modal)
     return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary
