@@ -230,15 +230,17 @@ class Problem:
     def without_orbit_records(self) -> Problem | None:
         """The records the linearised and first-order models explain (those not on the
         periodic-orbit model), as a problem with the same parameters: the first stage of a
-        staged fit. None where no record is left or the parameters would differ (a speed
-        only the orbit records have)."""
+        staged fit. Their models are chosen where this problem's were (the prior or
+        `model_theta`). None where no record is left or the parameters would differ (a
+        speed only the orbit records have)."""
         idx = [i for i, m in enumerate(self.models) if m != "nonlinear"]
         if not idx or len(idx) == len(self.data):
             return None
         left_out = {k: self.frf_left_out[i] for k, i in enumerate(idx)
                     if i in self.frf_left_out}
         pb = Problem([self.data[i] for i in idx], self.prior, self.fit, priors=self.priors,
-                     frf_left_out=left_out, **self._choice, **self._options)
+                     frf_left_out=left_out, model_theta=self.model_theta, **self._choice,
+                     **self._options)
         return pb if pb.names == self.names else None
 
     @property

@@ -50,6 +50,9 @@ SPEED = 2000.0
 RATIOS = (0.13, 0.35, 0.62, 0.84, 0.95, 1.03, 1.24, 1.77)
 LOW_FORCE, HIGH = 100.0, ((150.0, 3000.0), (300.0, 3000.0))
 SINE_S = 0.5
+# Highest sine [Hz]: the top of the chirp's band, below the usable band (0.25 x FS = 2560
+# Hz; a stiff drive's 1.77 f1 reached 2578 Hz, a record `identify` refuses).
+TOP_HZ = 2500.0
 CHIRP = dict(force=5.0, duration=1.0, start=50.0, stop=2500.0)
 EFFECTS = idn.TestEffects(accel_snr_db=40.0, force_snr_db=40.0)
 SETS = {"preload": idn.PRELOAD_FIT, "default": idn.DEFAULT_FIT}
@@ -84,7 +87,7 @@ def draw_drive(kind: str, drive: int):
 def plan(params):
     """[(frequency or None for the chirp, force, sweep)] and the drive's f1 [Hz]."""
     f1 = float(np.asarray(bsfs_jax.modes(bsfs_jax.build_system(params)).frequencies_hz)[0])
-    sines = [(round(r * f1, 1), LOW_FORCE, "up") for r in RATIOS] + [
+    sines = [(min(round(r * f1, 1), TOP_HZ), LOW_FORCE, "up") for r in RATIOS] + [
         (f, n, None) for f, n in HIGH]
     return sines, f1
 
