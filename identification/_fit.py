@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from ._anchors import MAX_ROUNDS, anchored, settle
+from ._groups import masked_orbit_records
 from ._lm import NO_INFORMATION_STD, gn_step_sigma
 from ._modal import modal_estimate, modal_starts
 from ._problem import Problem
@@ -174,15 +175,15 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
     """Starts for a fit with periodic-orbit records: `STAGE1_STARTS` (or `starts`, if more)
     quasi-random starts, each moved onto the first resonance read off the records where
     they bracket it (`estimate`, `first_estimate`: the data-driven first estimate), then
-    carried to the optimum of the records the cheaper models explain
-    (`Problem.without_orbit_records`), as one batched solve. Where no record is left on
+    carried to the optimum of the records the cheaper models explain (the orbit records
+    masked, `_groups.masked_orbit_records`), as one batched solve. Where no record is left on
     the cheaper models, there is no first stage: the full fit starts from the first
     max(`starts`, `FULL_STARTS`) of those starts. The full fit starts
     from each distinct optimum (lowest cost first, at most max(`starts`, `FULL_STARTS`));
     each carries the number of quasi-random starts that reached it (its basin), so
     agreement among starts is counted in the original starts.
     Returns (points, basin counts, summary dict for the report)."""
-    first = problem.without_orbit_records()
+    cheap = sum(m != "nonlinear" for m in problem.models)
     keep = max(1, starts, FULL_STARTS)
     pts = start_points(problem, max(starts, STAGE1_STARTS), seed)
     # The data-driven first estimate: every start moved onto the measured resonance
@@ -194,15 +195,17 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
         pts = moved
         modal = dict(estimate=estimate.as_dict(), summary=estimate.summary(),
                      mismatch_se=mismatch)
-    if first is None:
+    if not cheap:
         # No record on the cheaper models: a first stage on linearised records would fit
         # the wrong model (measured on two records at a fold: its single optimum had 4x
         # the true damping, and the full fit from it stopped in a local minimum at 1.5e6
         # times the cost at the truth). The full fit starts from the quasi-random starts.
         return pts[:keep], [1] * keep, dict(stage=None, records=0, starts=keep,
                                             first_estimate=modal)
-    out = solve(np.stack(pts), True, first.fit_data, first.structure,
-                dataclasses.replace(options, step_tol=0.1))
+    # The first stage is the full problem with the orbit records' rows masked
+    # (`masked_orbit_records`): the same compiled program as the full fit.
+    out = solve(np.stack(pts), True, masked_orbit_records(problem.fit_data),
+                problem.structure, dataclasses.replace(options, step_tol=0.1))
     cost = np.where(np.isfinite(out["cost"]), out["cost"], np.inf)
     order = np.argsort(cost)
     best = cost[order[0]]
@@ -221,7 +224,7 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
     if not distinct:  # every start failed: the prior
         distinct, basin = [order[0]], [1]
     summary = dict(stage="records on the linear and first-order models",
-                   records=len(first.data), starts=len(pts),
+                   records=cheap, starts=len(pts),
                    reached_best=int(same.sum()), distinct_optima=len(distinct),
                    full_fit_starts=min(keep, len(distinct)), first_estimate=modal)
     return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary
@@ -229,7 +232,7 @@ def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOption
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
         theta0=None, warm_start: bool = True, check_models: bool = True,
-        method: str = "dogleg") -> FitResult:
+        method: str = "dogleg", model_check: bool = True) -> FitResult:
     """Fit from several starts; the lowest cost wins and every start is reported.
 
     `theta0` replaces the prior as start 0 (e.g. a previous optimum). `warm_start`: where
@@ -240,6 +243,9 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     (`Problem.rechosen`); if it differs, the fit is repeated with it from the starts' optima,
     up to `MAX_REFITS` times. `max_steps` bounds the optimiser's accepted steps (2 x
     `max_steps` steps with the rejected ones); `method` its descent (`_solve.make_solver`).
+    `model_check`: compute the model at the estimate (`FitResult.model`) and mark the fit
+    not converged where a record has none (`gate_steady_state`); `identify` does both from
+    its branch check instead.
     """
     t0 = time.perf_counter()
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
@@ -270,7 +276,17 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
                 break
             result = _fit_from(again, [np.asarray(r["theta"]) for r in result.starts],
                                options, weights)
-    result.model = result.problem.model_harmonics(result.theta)
+    if model_check:
+        result.model = result.problem.model_harmonics(result.theta)
+        gate_steady_state(result)
+    result.seconds = time.perf_counter() - t0
+    result.stage1 = stage1
+    return result
+
+
+def gate_steady_state(result: FitResult) -> None:
+    """Not converged where a record's model at the estimate is not finite (`result.model`:
+    its periodic orbit did not converge there)."""
     bad = [d.name for d, m in zip(result.problem.data, result.model)
            if not np.all(np.isfinite(m))]
     if bad:
@@ -278,9 +294,6 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
             "the model has no steady state at the estimate for record(s) "
             + ", ".join(f"'{n}'" for n in bad)
             + " (its periodic orbit did not converge), so the fit cannot match them")
-    result.seconds = time.perf_counter() - t0
-    result.stage1 = stage1
-    return result
 
 
 def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> FitResult:

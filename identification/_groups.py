@@ -80,6 +80,10 @@ class FitData(eqx.Module):
     inv_sigma: jax.Array  # (p,) 1 / prior std of theta; 0: no prior
     info_floor: jax.Array  # () singular values below this carry no information (ML: 1)
     groups: tuple
+    # () bool: the periodic-orbit records are modelled (False: a staged fit's first stage,
+    # `masked_orbit_records`: their rows carry no data and no orbit is solved, in the same
+    # compiled program as the full fit)
+    orbits_on: jax.Array = True
 
 
 def sweep_direction(d) -> float:
@@ -197,13 +201,27 @@ def build_data(problem, is_frf):
     fit_data = FitData(
         problem.base, np.asarray(problem.speeds, float), np.asarray(problem.prior_values),
         np.asarray(np.zeros(problem.n_params) if sigma is None else 1.0 / np.asarray(sigma)),
-        np.asarray(problem.info_floor, float), tuple(groups))
+        np.asarray(problem.info_floor, float), tuple(groups), np.asarray(True))
     structure = Structure(tuple(problem.keys),
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),
                           tuple(bool(x) for x in problem.is_log), len(problem.speeds),
                           problem.may_use_first_order, sweeps)
     return fit_data, structure, layout
+
+
+def masked_orbit_records(fit_data: FitData) -> FitData:
+    """The same data with the periodic-orbit records left out: their rows carry no data
+    (infinite standard errors: zero residual and Jacobian rows) and no orbit is solved
+    (`orbits_on` False). Same layout, so the same compiled program."""
+    groups = []
+    for g in fit_data.groups:
+        nl = np.asarray(g.sine_orbit)
+        scale = np.where(nl[:, None, None], np.inf, np.asarray(g.sine_scale))
+        groups.append(eqx.tree_at(lambda x: (x.sine_scale, x.sine_orbit), g,
+                                  (scale, np.zeros_like(nl))))
+    return eqx.tree_at(lambda d: (d.groups, d.orbits_on), fit_data,
+                       (tuple(groups), np.asarray(False)))
 
 
 def used_rows(fit_data: FitData) -> np.ndarray:

@@ -44,22 +44,31 @@ def params_at(theta, data: FitData, structure: Structure, group: int):
     return p
 
 
-def _sine_model(system, g, first_order: bool, sweeps: bool = False):
+def _sine_model(system, g, first_order: bool, sweeps: bool = False, orbits: bool = True,
+                orbits_on=True):
     lin = linear_acceleration(system, g.sine_freq, g.sine_force)
     if first_order:
         corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(
             system, g.sine_freq[:, 0], g.sine_force)
         lin = lin + jnp.where(g.sine_first[:, None], corr, 0.0)
-    if not g.orbit_index.shape[0]:
+    if not (orbits and g.orbit_index.shape[0]):
         return lin
     idx = g.orbit_index
-    if sweeps:  # swept records start from their anchors (`_anchors.py`)
-        fn = lambda f, fc, am, z: nonlinear_acceleration(system, f, fc, am, start=z)
-        nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx],
-                              g.sine_anchor[idx])
-    else:
+
+    def solve_orbits():
+        if sweeps:  # swept records start from their anchors (`_anchors.py`)
+            fn = lambda f, fc, am, z: nonlinear_acceleration(system, f, fc, am, start=z)
+            return jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx],
+                                g.sine_anchor[idx])
         fn = lambda f, fc, am: nonlinear_acceleration(system, f, fc, am)
-        nl, ok = jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx])
+        return jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx])
+
+    def skip():  # a first stage: the orbit records' rows carry no data
+        return lin[idx], jnp.ones(idx.shape, bool)
+
+    # A branch, not a select, where the flag is not batched (the lanes of a CPU solve
+    # run one after the other): a first stage costs what a program without orbits does.
+    nl, ok = jax.lax.cond(orbits_on, solve_orbits, skip)
     nl = jnp.where(ok[:, None], nl, jnp.inf)
     # Padded slots repeat a real slot (the same value twice) or point at a record that is
     # not on the orbit model (masked below).
@@ -67,12 +76,15 @@ def _sine_model(system, g, first_order: bool, sweeps: bool = False):
     return jnp.where(g.sine_orbit[:, None], full, lin)
 
 
-def predict(theta, data: FitData, structure: Structure):
-    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,))] (complex)."""
+def predict(theta, data: FitData, structure: Structure, orbits: bool = True):
+    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,))] (complex).
+    `orbits=False`: the periodic-orbit records get their linearised model instead (a
+    caller that has their orbits already, `Problem.model_harmonics`)."""
     out = []
     for gi, g in enumerate(data.groups):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
-        sine = (_sine_model(system, g, structure.first_order, structure.sweeps)
+        sine = (_sine_model(system, g, structure.first_order, structure.sweeps, orbits,
+                            data.orbits_on)
                 if g.sine_freq.shape[0] else jnp.zeros(g.sine_freq.shape, complex))
         frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
                if g.frf_freq.shape[0] else jnp.zeros(0, complex))
@@ -123,8 +135,8 @@ def residual_and_jacobian(theta, data: FitData, structure: Structure):
 
 
 @bsfs_jax.cached_jit
-def predictions(theta, data: FitData, structure: Structure):
-    return predict(theta, data, structure)
+def predictions(theta, data: FitData, structure: Structure, orbits: bool = True):
+    return predict(theta, data, structure, orbits)
 
 
 def static_compliance(theta, data: FitData, structure: Structure, group: int):

@@ -271,9 +271,10 @@ def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
     "upper", "lower", or "unresolved" where the orbits could not be computed, the fitted
     one is unstable or it is neither of the swept ones); a dict of the evidence
     (fundamental amplitudes [m/s^2] of the fitted, up-swept and down-swept orbits, their
-    stability); and the fitted
+    stability); the fitted
     orbit's truncation error (R, H) (2 x `ORBIT_HARMONICS` harmonics against
-    `ORBIT_HARMONICS`). One compiled program for all of it."""
+    `ORBIT_HARMONICS`); and the fitted orbit's acceleration harmonics (R, H), nan where
+    it did not converge. One compiled program for all of it."""
     (a_fit, s_fit, ok_fit), up, down, trunc = (
         jax.tree_util.tree_map(np.asarray, out) for out in _branch_kernel(
             system, jnp.asarray(freq, float), jnp.asarray(force), jnp.asarray(measured),
@@ -301,4 +302,5 @@ def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
                                    "down" if same(a_fit, down[0]) else "neither")
         labels.append(label)
         evidence.append(ev)
-    return labels, evidence, trunc
+    fitted = np.where(ok_fit[:, None], a_fit, np.nan)
+    return labels, evidence, trunc, fitted

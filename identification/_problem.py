@@ -416,10 +416,17 @@ class Problem:
         """For each record (in data order) the indices of its entries in the residual."""
         return [self.layout[i][2] for i in range(len(self.data))]
 
-    def model_harmonics(self, theta):
-        """Model accelerations per record in data order (numpy): harmonics or FRF lines."""
-        preds = _model.predictions(jnp.asarray(theta, float), self.fit_data, self.structure)
-        return self.per_record(preds)
+    def model_harmonics(self, theta, orbit_model: dict | None = None):
+        """Model accelerations per record in data order (numpy): harmonics or FRF lines.
+        `orbit_model` ({record index: harmonics}): the periodic-orbit records' model where
+        the caller has it already (`_report.record_branches` at the estimate); the
+        program then solves no orbit."""
+        preds = _model.predictions(jnp.asarray(theta, float), self.fit_data, self.structure,
+                                   orbit_model is None)
+        out = self.per_record(preds)
+        for i, a in (orbit_model or {}).items():
+            out[i] = np.asarray(a)
+        return out
 
     def per_record(self, preds):
         """A prediction per group ([(sine (R, H), FRF (L,))], `_model.predict`) -> the model

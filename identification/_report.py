@@ -10,7 +10,7 @@ import numpy as np
 
 import bsfs_jax
 
-from ._fit import FitResult, fit
+from ._fit import FitResult, fit, gate_steady_state
 from ._measurement import harmonic_analysis
 from ._problem import DEFAULT_FIT, MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
@@ -92,7 +92,9 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     data = [measurement_data(r) for r in loaded]
     prior = bsfs_jax.preset() if prior is None else prior
     problem = Problem(data, prior, fit_names, model=model, priors=priors)
-    result = fit(problem, starts=starts, seed=seed, max_steps=max_steps)
+    # The model at the estimate (and its check) comes from the branch kernel below: its
+    # fitted orbits are the model's, and no separate program solves them again.
+    result = fit(problem, starts=starts, seed=seed, max_steps=max_steps, model_check=False)
     problem = result.problem  # the models as chosen at the estimate
     unc = uncertainty(result)
     lin = None
@@ -104,7 +106,10 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
         unc.noise["profile"] = "checked" if profile else "skipped (profile off)"
     if profile:
         unc, lin = profile_intervals(result, unc)
-    branch = record_branches(problem, result.theta)
+    orbit_model = {}
+    branch = record_branches(problem, result.theta, orbit_model)
+    result.model = problem.model_harmonics(result.theta, orbit_model)
+    gate_steady_state(result)
     gate_truncation(result, branch, [d.name for d in problem.data])
     return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin,
                                 branch)
@@ -128,11 +133,12 @@ def gate_truncation(result, branch: dict, names) -> None:
             + " (16 against 32 harmonics; nan: the 32-harmonic orbit failed)")
 
 
-def record_branches(problem: Problem, theta) -> dict:
+def record_branches(problem: Problem, theta, models: dict | None = None) -> dict:
     """For each record on the periodic-orbit model, at `theta`: which branch its orbit is
     ("single", "upper", "lower" or "unresolved"; `_orbit_model.branches`), the evidence, the
     sweep direction that reaches it, and the model's truncation error in standard errors
-    (16 against 32 harmonics, largest over the usable harmonics)."""
+    (16 against 32 harmonics, largest over the usable harmonics). `models` (a dict, filled
+    in): {record index: the fitted orbit's acceleration harmonics (nan: no orbit)}."""
     from ._choice import _z
     from ._groups import sweep_direction
     from ._orbit_model import branches
@@ -147,9 +153,11 @@ def record_branches(problem: Problem, theta) -> dict:
         recs = [problem.data[i] for i in idx]
         args = ([d.frequency_hz for d in recs], np.stack([d.force for d in recs]),
                 np.stack([d.acceleration for d in recs]))
-        labels, evidence, trunc = branches(system, *args,
-                                           [sweep_direction(d) for d in recs])
+        labels, evidence, trunc, fitted = branches(system, *args,
+                                                   [sweep_direction(d) for d in recs])
         for j, i in enumerate(idx):
+            if models is not None:
+                models[i] = fitted[j]
             d = recs[j]
             var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
             usable = d.frequency_hz * d.harmonics <= problem.max_harmonic_hz

@@ -44,7 +44,7 @@ def test_each_record_is_labelled_with_the_branch_it_is_on(swept_records):
     args = ([d.frequency_hz for d in ds], np.stack([d.force for d in ds]),
             np.stack([d.acceleration for d in ds]))
     for sweep in (None, [1.0, -1.0]):  # from the measured state, and from the header
-        labels, evidence, _ = branches(system, *args, sweep)
+        labels, evidence, _, _ = branches(system, *args, sweep)
         # Sweeping up, the drive stays on the low-amplitude orbit up to the upper fold.
         assert labels == ["lower", "upper"]
         assert [e["sweep_reaching_it"] for e in evidence] == ["up", "down"]
@@ -97,7 +97,7 @@ def test_a_record_started_between_the_branches_is_not_labelled_with_one():
     fc = np.asarray([-100j])
     up, down = (np.asarray(acceleration_of(swept_orbit(system, FREQUENCY, jnp.asarray(fc), d),
                                            FREQUENCY, 1))[0] for d in (1.0, -1.0))
-    labels, evidence, _ = branches(system, [FREQUENCY], fc[None],
+    labels, evidence, _, _ = branches(system, [FREQUENCY], fc[None],
                                    np.asarray([[up + 0.6 * (down - up)]]))
     assert not evidence[0]["fitted_stable"]
     assert abs(up) < evidence[0]["fitted_amplitude_m_s2"] < abs(down)
