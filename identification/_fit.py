@@ -58,11 +58,15 @@ class FitResult:
     # Why the model itself cannot be trusted at the estimate (a record without a model
     # orbit, a truncation error beyond `TRUNCATION_GATE`): each makes the fit not converged.
     model_issues: list = dataclasses.field(default_factory=list)
+    model_issue_kinds: list = dataclasses.field(default_factory=list)  # one per issue
     # Model values per record at the estimate (`Problem.model_harmonics`), set by `fit`.
     model: list | None = None
 
-    def add_model_issue(self, text: str) -> None:
+    def add_model_issue(self, text: str, kind: str = "model") -> None:
+        """Mark the fit not converged because of the model at the estimate; `kind` names
+        the cause for programs ("no_steady_state", "truncation", "swept_orbit")."""
         self.model_issues.append(text)
+        self.model_issue_kinds.append(kind)
         self.converged = False
 
     @property
@@ -293,7 +297,8 @@ def gate_steady_state(result: FitResult) -> None:
         result.add_model_issue(
             "the model has no steady state at the estimate for record(s) "
             + ", ".join(f"'{n}'" for n in bad)
-            + " (its periodic orbit did not converge), so the fit cannot match them")
+            + " (its periodic orbit did not converge), so the fit cannot match them",
+            "no_steady_state")
 
 
 def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> FitResult:
@@ -347,5 +352,6 @@ def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> 
     if settled is not None and not settled[best_k]:
         result.add_model_issue(
             "a swept record's fitted orbit is not the one its sweep reaches at the estimate "
-            f"after {MAX_ROUNDS} re-anchored solves (the estimate sits at a fold)")
+            f"after {MAX_ROUNDS} re-anchored solves (the estimate sits at a fold)",
+            "swept_orbit")
     return result

@@ -130,7 +130,7 @@ def gate_truncation(result, branch: dict, names) -> None:
             "the periodic-orbit model's truncation error at the estimate exceeds "
             f"{TRUNCATION_GATE:g} standard error(s) for "
             + ", ".join(f"'{n}' ({z:.2g})" for n, z in bad.items())
-            + " (16 against 32 harmonics; nan: the 32-harmonic orbit failed)")
+            + " (16 against 32 harmonics; nan: the 32-harmonic orbit failed)", "truncation")
 
 
 def record_branches(problem: Problem, theta, models: dict | None = None) -> dict:
@@ -302,7 +302,9 @@ def report_dict(res: IdentificationResult) -> dict:
                               f"the simplest whose predicted error is below {MODEL_ERROR:g} "
                               "standard errors; chirp/random/hammer: FRF lines vs the "
                               "linearised FRF, a chirp's lines beyond that bound left out",
-            model_choice=fr.model_choice),
+            model_choice=fr.model_choice,
+            model_issues=[dict(kind=k, text=t) for k, t in zip(fr.model_issue_kinds,
+                                                                fr.model_issues)]),
         summary=summary_text(res),
     )
 

@@ -115,10 +115,11 @@ def failure_cause(res, cost_fit, cost_truth) -> str | None:
     fr = res.fit
     if not fr.converged:
         if fr.model_issues:  # the model's accuracy at the estimate (`FitResult.model_issues`)
-            issue = fr.model_issues[0]
-            return ("model truncation error above the gate" if "truncation" in issue else
-                    "no model at the estimate" if "no steady state" in issue else
-                    "model issue: " + issue[:80])
+            kind = fr.model_issue_kinds[0]
+            return {"truncation": "model truncation error above the gate",
+                    "no_steady_state": "no model at the estimate",
+                    "swept_orbit": "swept record off its sweep's orbit at the estimate"}.get(
+                kind, "model issue: " + fr.model_issues[0][:80])
         if fr.model_choice == "unsettled":
             return "model choice unsettled"
         if not fr.remaining_step < 0.01:

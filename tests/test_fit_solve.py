@@ -115,3 +115,19 @@ def test_same_optimum_as_minpack_on_the_preload_loss_set():
             idn.load_records(idn.bundled_records("preload-loss"))]
     assert any(hasattr(d, "accelerance") for d in data)  # the chirp's FRF is in
     _cross_check(idn.Problem(data, bsfs_jax.preset(), idn.PRELOAD_FIT))
+
+
+@pytest.mark.parametrize("z, gated", [(0.5, False), (2.0, True), (float("nan"), True)])
+def test_the_truncation_gate_names_the_record_and_its_kind(z, gated):
+    """A record whose orbit model is off by more than the gate at the estimate (or whose
+    32-harmonic check failed: nan) makes the fit not converged, with a kind for programs."""
+    from identification._fit import FitResult
+    from identification._report import TRUNCATION_GATE, gate_truncation
+
+    res = FitResult(None, np.zeros(1), np.ones(1), 1.0, np.zeros(2), np.zeros((2, 1)), [],
+                    True, True, 0.0, 1, 0.0)
+    gate_truncation(res, {1: dict(orbit_truncation_error_std=z)}, ["a", "b"])
+    assert res.converged is (not gated)
+    assert res.model_issue_kinds == (["truncation"] if gated else [])
+    if gated:
+        assert "'b'" in res.model_issues[0] and f"{TRUNCATION_GATE:g}" in res.model_issues[0]
