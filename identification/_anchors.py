@@ -54,7 +54,8 @@ def _anchor_kernel(theta, data: FitData, structure: Structure):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
         idx = g.sweep_index  # only the swept records: vmapped continuations run in lockstep
         z = jax.vmap(lambda f, fc, d: swept_unknowns(system, f, fc,
-                                                     jnp.where(d < 0, -1.0, 1.0)))(
+                                                     jnp.where(d < 0, -1.0, 1.0),
+                                                     structure.orbit_harmonics))(
             g.sine_freq[idx, 0], g.sine_force[idx], g.sine_sweep[idx])
         out.append(jnp.zeros_like(g.sine_anchor).at[idx].set(z))
     return tuple(out)

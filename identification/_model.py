@@ -21,7 +21,7 @@ import bsfs_jax
 
 from ._groups import FitData, Structure
 from ._measurement import linear_acceleration, linearisation_error, receptance
-from ._orbit_model import nonlinear_acceleration
+from ._orbit_model import ORBIT_HARMONICS, nonlinear_acceleration
 
 # A trial point whose model is not finite (a joint without preload) costs this per entry.
 BAD_RESIDUAL = 1e6
@@ -45,7 +45,7 @@ def params_at(theta, data: FitData, structure: Structure, group: int):
 
 
 def _sine_model(system, g, first_order: bool, sweeps: bool = False, orbits: bool = True,
-                orbits_on=True):
+                orbits_on=True, harmonics: int = ORBIT_HARMONICS):
     lin = linear_acceleration(system, g.sine_freq, g.sine_force)
     if first_order:
         corr = jax.vmap(linearisation_error, in_axes=(None, 0, 0))(
@@ -57,10 +57,11 @@ def _sine_model(system, g, first_order: bool, sweeps: bool = False, orbits: bool
 
     def solve_orbits():
         if sweeps:  # swept records start from their anchors (`_anchors.py`)
-            fn = lambda f, fc, am, z: nonlinear_acceleration(system, f, fc, am, start=z)
+            fn = lambda f, fc, am, z: nonlinear_acceleration(system, f, fc, am, harmonics,
+                                                             start=z)
             return jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx],
                                 g.sine_anchor[idx])
-        fn = lambda f, fc, am: nonlinear_acceleration(system, f, fc, am)
+        fn = lambda f, fc, am: nonlinear_acceleration(system, f, fc, am, harmonics)
         return jax.vmap(fn)(g.sine_freq[idx, 0], g.sine_force[idx], g.sine_acc[idx])
 
     def skip():  # a first stage: the orbit records' rows carry no data
@@ -84,7 +85,7 @@ def predict(theta, data: FitData, structure: Structure, orbits: bool = True):
     for gi, g in enumerate(data.groups):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
         sine = (_sine_model(system, g, structure.first_order, structure.sweeps, orbits,
-                            data.orbits_on)
+                            data.orbits_on, structure.orbit_harmonics)
                 if g.sine_freq.shape[0] else jnp.zeros(g.sine_freq.shape, complex))
         frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
                if g.frf_freq.shape[0] else jnp.zeros(0, complex))

@@ -142,7 +142,7 @@ def nonlinear_acceleration(system, frequency_hz, force_coeffs, measured_acc=None
                            harmonics: int = ORBIT_HARMONICS, start=None):
     """(acceleration harmonics (H,), ok flag) of the periodic steady state under the force
     harmonics, started from the measured state (`measured_start`; from the linear steady
-    state without `measured_acc`). `start` (traced HB unknowns, `ORBIT_HARMONICS`): where
+    state without `measured_acc`). `start` (traced HB unknowns, `harmonics`): where
     given and not all zero, Newton starts there instead (a swept record's anchor: the orbit
     its sweep reaches, `swept_unknowns`, computed at a nearby parameter set)."""
     h_f = force_coeffs.shape[-1]
@@ -152,8 +152,7 @@ def nonlinear_acceleration(system, frequency_hz, force_coeffs, measured_acc=None
     else:
         z0 = measured_start(system, frequency_hz, force_coeffs, measured_acc, harmonics)
     if start is not None:
-        assert harmonics == ORBIT_HARMONICS, "an anchor has ORBIT_HARMONICS harmonics"
-        z0 = jnp.where(jnp.any(start != 0), start, z0)
+        z0 = jnp.where(jnp.any(start != 0), start, z0)  # an anchor of `harmonics` harmonics
     z0 = jax.lax.stop_gradient(z0)
     orbit = orbit_of(system, frequency_hz, force_coeffs, z0, harmonics)
     return acceleration_of(orbit, frequency_hz, h_f), orbit.converged
@@ -186,7 +185,8 @@ def nonlinear_acceleration_transient(system, frequency_hz, force_coeffs, *,
 JUMP_SCALES = (1.0, 1.5, 0.7, 2.0, 1.25, 3.0)
 
 
-def swept_unknowns(system, frequency_hz, force_coeffs, direction):
+def swept_unknowns(system, frequency_hz, force_coeffs, direction,
+                   harmonics: int = ORBIT_HARMONICS):
     """HB unknowns of the orbit a stepped sine reaches at `frequency_hz` sweeping up
     (direction +1, from (1 - SWEEP_SPAN) f in `SWEEP_STEPS` steps) or down (-1).
 
@@ -203,7 +203,7 @@ def swept_unknowns(system, frequency_hz, force_coeffs, direction):
     scales = jnp.asarray((0.0,) + JUMP_SCALES)
 
     def fresh(f):
-        return _unknowns(linear_harmonics(system, f, force_coeffs), f, ORBIT_HARMONICS)
+        return _unknowns(linear_harmonics(system, f, force_coeffs), f, harmonics)
 
     def step(z, f):
         lin = fresh(f)
@@ -211,7 +211,7 @@ def swept_unknowns(system, frequency_hz, force_coeffs, direction):
         def attempt(c):
             k, zk, _ = c
             orbit = orbit_of(system, f, force_coeffs, jnp.where(k == 0, z, scales[k] * lin),
-                             max_steps=SWEEP_NEWTON_STEPS)
+                             harmonics, max_steps=SWEEP_NEWTON_STEPS)
             return k + 1, orbit.unknowns, orbit.converged
 
         _, zk, ok = jax.lax.while_loop(lambda c: (~c[2]) & (c[0] < scales.size), attempt,
@@ -237,28 +237,29 @@ def swept_state(system, frequency_hz, force_coeffs, direction):
 
 
 @bsfs_jax.cached_jit
-def _branch_kernel(system, freq, force, measured, sweep):
+def _branch_kernel(system, freq, force, measured, sweep, harmonics: int = ORBIT_HARMONICS):
     """Per record: the fitted, up-swept and down-swept orbits' (acceleration, stable,
-    converged), and the fitted orbit's truncation error (2 x `ORBIT_HARMONICS` harmonics,
+    converged), and the fitted orbit's truncation error (2 x `harmonics` harmonics,
     started from the fitted orbit, minus the fitted acceleration)."""
+    h = harmonics
     def one(f, fc, am, sw):
         h_f = fc.shape[-1]
         # One Newton in the program for the two sweeps, one for the three orbits (started
         # from the measured state and from each sweep's end), one at 32 harmonics: each
         # inlined Newton is a large part of the compilation.
-        z_up, z_down = jax.vmap(lambda d: swept_unknowns(system, f, fc, d))(
+        z_up, z_down = jax.vmap(lambda d: swept_unknowns(system, f, fc, d, h))(
             jnp.asarray([1.0, -1.0]))
-        starts = jnp.stack([measured_start(system, f, fc, am), z_up, z_down])
-        orbits = jax.vmap(lambda z: orbit_of(system, f, fc, z))(starts)
-        acc = jax.vmap(lambda z: _acceleration_of_unknowns(z, f, h_f))(orbits.unknowns)
+        starts = jnp.stack([measured_start(system, f, fc, am, h), z_up, z_down])
+        orbits = jax.vmap(lambda z: orbit_of(system, f, fc, z, h))(starts)
+        acc = jax.vmap(lambda z: _acceleration_of_unknowns(z, f, h_f, h))(orbits.unknowns)
         every = (acc, orbits.stable, orbits.converged, orbits.unknowns)
         # A record with a sweep direction is fitted on that sweep's orbit.
         pick = jnp.where(sw > 0, 1, jnp.where(sw < 0, 2, 0))
         fit = tuple(x[pick] for x in every)
         up, down = (tuple(x[i] for x in every[:3]) for i in (1, 2))
-        wide = _method(2 * ORBIT_HARMONICS)
-        z32 = wide.from_coefficients(_method(), fit[3], 6)
-        o32 = orbit_of(system, f, fc, z32, 2 * ORBIT_HARMONICS)
+        wide = _method(2 * h)
+        z32 = wide.from_coefficients(_method(h), fit[3], 6)
+        o32 = orbit_of(system, f, fc, z32, 2 * h)
         # No 32-harmonic orbit: the truncation error is unknown (nan; the fit is gated).
         a32 = jnp.where(o32.converged, acceleration_of(o32, f, h_f), jnp.nan)
         return fit[:3], up, down, a32 - fit[0]
@@ -266,19 +267,21 @@ def _branch_kernel(system, freq, force, measured, sweep):
     return jax.vmap(one)(freq, force, measured, sweep)
 
 
-def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4):
+def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4,
+             harmonics: int = ORBIT_HARMONICS):
     """Per record (lists): the branch label of the orbit the record is fitted on ("single",
     "upper", "lower", or "unresolved" where the orbits could not be computed, the fitted
     one is unstable or it is neither of the swept ones); a dict of the evidence
     (fundamental amplitudes [m/s^2] of the fitted, up-swept and down-swept orbits, their
     stability); the fitted
-    orbit's truncation error (R, H) (2 x `ORBIT_HARMONICS` harmonics against
-    `ORBIT_HARMONICS`); and the fitted orbit's acceleration harmonics (R, H), nan where
+    orbit's truncation error (R, H) (2 x `harmonics` harmonics against `harmonics`,
+    the model's); and the fitted orbit's acceleration harmonics (R, H), nan where
     it did not converge. One compiled program for all of it."""
     (a_fit, s_fit, ok_fit), up, down, trunc = (
         jax.tree_util.tree_map(np.asarray, out) for out in _branch_kernel(
             system, jnp.asarray(freq, float), jnp.asarray(force), jnp.asarray(measured),
-            jnp.zeros(len(freq)) if sweep is None else jnp.asarray(sweep, float)))
+            jnp.zeros(len(freq)) if sweep is None else jnp.asarray(sweep, float),
+            harmonics))
     labels, evidence = [], []
     for i in range(len(freq)):
         amp = lambda a: float(np.abs(a[i, 0]))

@@ -36,6 +36,7 @@ from . import _model
 from ._choice import MODEL_ERROR, is_frf, keep_marginal, same_choice, screen
 from ._groups import build_data, used_rows
 from ._lm import NO_INFORMATION_STD
+from ._orbit_model import ORBIT_HARMONICS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -219,6 +220,7 @@ class Problem:
         if previous is not None:
             self.models, self.frf_left_out = keep_marginal(self, previous, model_error)
         self.info_floor = 1.0 / NO_INFORMATION_STD if self.prior_sigma is None else 0.0
+        self.orbit_harmonics = ORBIT_HARMONICS
         self.fit_data, self.structure, self.layout = build_data(self, is_frf)
 
     def linearised(self) -> Problem:

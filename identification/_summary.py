@@ -110,15 +110,16 @@ def _branch_lines(res) -> list[str]:
     text = ", ".join(f"'{names[i]}' {b['branch']}" for i, b in sorted(br.items()))
     out = [f"Branches (periodic-orbit records; up- and down-sweep orbits at the estimate): "
            f"{text}."]
+    h = res.problem.orbit_harmonics
     for i, b in sorted(br.items()):
         if b["branch"] == "unresolved":
             out.append(f"Record '{names[i]}': its fitted orbit is not one that a stepped sine "
                        "reaches sweeping up or down (or it is unstable, or an orbit failed); "
                        "check the record and the fit's branch.")
-        if b["orbit_truncation_error_std"] > MODEL_ERROR:
+        if not b["orbit_truncation_error_std"] <= MODEL_ERROR:
             out.append(f"Record '{names[i]}': the orbit model's truncation error is "
                        f"{b['orbit_truncation_error_std']:.2g} standard errors (above "
-                       f"{MODEL_ERROR:g}).")
+                       f"{MODEL_ERROR:g}; {h} against {2 * h} harmonics).")
     return out
 
 
