@@ -47,6 +47,18 @@ def write_text_atomic(path, text: str) -> Path:
     return write_bytes_atomic(path, text.encode())
 
 
+def save_figure(fig, path, *, tight: bool = True, dpi: int = 130) -> Path:
+    """Save a matplotlib figure atomically (format from the suffix, PNG by default).
+    `tight`: crop to the drawn artists (a second drawing pass); False for figures laid out
+    by `tight_layout`."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=dpi,
+                bbox_inches="tight" if tight else None)
+    return write_bytes_atomic(path, buf.getvalue())
+
+
 def save_npz_atomic(path, **arrays) -> Path:
     """`np.savez(path, **arrays)` atomically (the name is kept as given)."""
 

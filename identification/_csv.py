@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bsfs_jax.params import write_text_atomic
+from bsfs_jax.files import write_text_atomic
 
 from ._records import COLUMNS, RecordError, finish, format_meta_value, parse_value, unpack
 

@@ -348,7 +348,7 @@ def write_identified(res: IdentificationResult, out_dir) -> list[Path]:
     "NOT DETERMINED by the data", with what it rests on.
     """
     from bsfs_jax import params_to_toml
-    from bsfs_jax.params import write_text_atomic
+    from bsfs_jax.files import write_text_atomic
 
     out_dir = Path(out_dir)
     pb, u = res.problem, res.uncertainty

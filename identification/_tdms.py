@@ -29,10 +29,11 @@ from __future__ import annotations
 
 import datetime
 import math
-import os
 from pathlib import Path
 
 import numpy as np
+
+from bsfs_jax.files import write_atomic
 
 from ._records import (
     SAMPLE_RATE_REL,
@@ -267,13 +268,8 @@ def write_record_tdms(path, record_or_arrays, meta: dict | None = None) -> Path:
                                     (TIME, t, "s", {})):
         objects.append(ChannelObject(GROUP, name, np.asarray(data, float),
                                      properties={"unit_string": unit, **extra}))
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
+    def write(tmp: Path):
         with TdmsWriter(str(tmp)) as writer:
             writer.write_segment(objects)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+
+    return write_atomic(path, write)

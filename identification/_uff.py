@@ -14,10 +14,11 @@ id2..id5 lines of any set (80 characters each). Files from other software usuall
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
+
+from bsfs_jax.files import write_atomic
 
 from ._records import RecordError, finish, format_meta_value, parse_value, unpack
 
@@ -189,17 +190,14 @@ def _pack_ids(meta: dict, first: tuple) -> dict:
 def _write_sets(path: Path, sets) -> Path:
     import pyuff
 
-    path = Path(path)
-    # Written beside the target and renamed into place, so an existing file is replaced
-    # only by a complete new one.
-    tmp = path.with_name(f".{path.name}.tmp")
-    if tmp.exists():
-        tmp.unlink()
-    uff = pyuff.UFF(str(tmp))
-    for s in sets:
-        uff.write_sets(s, mode="add")
-    os.replace(tmp, path)
-    return path
+    def write(tmp: Path):
+        tmp.unlink()  # pyuff appends to an existing file
+        uff = pyuff.UFF(str(tmp))
+        for s in sets:
+            uff.write_sets(s, mode="add")
+
+    # An existing file is replaced only by a complete new one.
+    return write_atomic(path, write)
 
 
 _TIME_FIRST = ("excitation", "start_hz", "stop_hz", "frequency_hz", "force_amplitude_n",

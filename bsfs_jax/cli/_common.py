@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 
 from .._files import jsonable as jsonable
+from .._files import save_figure as save_figure
 from .._files import write_bytes_atomic as write_bytes_atomic
 from .._files import write_text_atomic as write_text_atomic
 
@@ -190,17 +191,6 @@ def count(low: int, high: int):
 def write_json(path, data) -> None:
     """Write JSON atomically (temp file in the same folder, then rename)."""
     write_bytes_atomic(path, (json.dumps(jsonable(data), indent=2) + "\n").encode())
-
-
-def save_figure(fig, path, *, tight: bool = True) -> None:
-    """Save a matplotlib figure atomically (PNG, 130 dpi). `tight`: crop to the drawn
-    artists (a second drawing pass); False for figures laid out by `tight_layout`."""
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=130,
-                bbox_inches="tight" if tight else None)
-    write_bytes_atomic(path, buf.getvalue())
 
 
 def progress_enabled(args) -> bool:

@@ -221,7 +221,7 @@ def run_sensitivity(args) -> int:
         md += [f"The paper states no trend for the metric '{metric.name}' and these "
                "parameters; run with --metric floquet, amplitude, frc_peak or "
                "natural_frequency for the comparison."]
-    from ..params import write_text_atomic
+    from ..files import write_text_atomic
 
     write_text_atomic(out / "sensitivity.md", "\n".join(md) + "\n")
     print(f"{metric.label}: {res.value:.6g} {res.unit}")
@@ -237,7 +237,8 @@ def run_sensitivity(args) -> int:
 
 def run_optimize(args) -> int:
     from ..design import get_metric, optimization_start, optimize, verify_by_simulation
-    from ..params import params_to_toml, write_text_atomic
+    from ..files import write_text_atomic
+    from ..params import params_to_toml
     from ..plotting import optimization_summary
 
     params = load_params_from_args(args)

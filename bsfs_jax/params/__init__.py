@@ -7,7 +7,6 @@ from ._io import params_to_toml as params_to_toml
 from ._io import preset as preset
 from ._io import preset_description as preset_description
 from ._io import save_params as save_params
-from ._io import write_text_atomic as write_text_atomic
 from ._params import BallScrewParams as BallScrewParams
 from ._params import BearingParams as BearingParams
 from ._params import Damping as Damping

@@ -5,13 +5,12 @@ writes the files (figures, REPRODUCTION.md, reproduction.json).
 """
 
 import dataclasses
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
-from .._files import jsonable, write_bytes_atomic, write_text_atomic
+from .._files import jsonable, save_figure, write_bytes_atomic, write_text_atomic
 from ..params import preset as load_preset
 from . import _figures as figs
 from ._claims import (
@@ -85,9 +84,7 @@ class Reproduction:
 def _save(fig, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    write_bytes_atomic(path, buf.getvalue())
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
