@@ -30,6 +30,11 @@ from ._frf import estimate_frf as estimate_frf
 from ._frf import frf_variance as frf_variance
 from ._measurement import HarmonicData as HarmonicData
 from ._measurement import harmonic_analysis as harmonic_analysis
+from ._parameters import DEFAULT_FIT as DEFAULT_FIT
+from ._parameters import FIT_PARAMETERS as FIT_PARAMETERS
+from ._parameters import PRELOAD_FIT as PRELOAD_FIT
+from ._parameters import parse_fit as parse_fit
+from ._parameters import parse_priors as parse_priors
 from ._plan import PlannedRecord as PlannedRecord
 from ._plan import TestPlan as TestPlan
 from ._plan import candidate_plans as candidate_plans
@@ -41,12 +46,7 @@ from ._posterior import MIN_DRAWS as MIN_DRAWS
 from ._posterior import Posterior as Posterior
 from ._posterior import posterior as posterior
 from ._posterior import posterior_text as posterior_text
-from ._problem import DEFAULT_FIT as DEFAULT_FIT
-from ._problem import FIT_PARAMETERS as FIT_PARAMETERS
-from ._problem import PRELOAD_FIT as PRELOAD_FIT
 from ._problem import Problem as Problem
-from ._problem import parse_fit as parse_fit
-from ._problem import parse_priors as parse_priors
 from ._profile import profile_intervals as profile_intervals
 from ._records import Record as Record
 from ._records import RecordError as RecordError

@@ -19,7 +19,8 @@ import numpy as np
 
 from . import _model
 from ._measurement import HarmonicData
-from ._problem import DEFAULT_FIT, Problem
+from ._parameters import DEFAULT_FIT
+from ._problem import Problem
 from ._records import Record
 from ._uncertainty import IDENTIFIABLE_STD
 

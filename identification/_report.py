@@ -12,7 +12,8 @@ import bsfs_jax
 
 from ._fit import FitResult, fit, gate_steady_state
 from ._measurement import harmonic_analysis
-from ._problem import DEFAULT_FIT, MODEL_ERROR, Problem, is_frf
+from ._parameters import DEFAULT_FIT
+from ._problem import MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
 from ._uncertainty import DETERMINED_RATIO, IDENTIFIABLE_STD, Uncertainty, uncertainty
 
