@@ -25,8 +25,6 @@ converged (`_fit._fit_from`).
 
 from __future__ import annotations
 
-import hashlib
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -61,36 +59,13 @@ def _anchor_kernel(theta, data: FitData, structure: Structure):
     return tuple(out)
 
 
-_MEMO: dict = {}  # (theta, structure, inputs) -> anchors: a model re-choice's starts are
-_MEMO_SIZE = 64  # the previous fit's results, where the anchors were just computed
-
-
-def _memo_key(theta, data: FitData, structure: Structure):
-    """What the anchors depend on: theta, the prior set and the swept records."""
-    h = hashlib.sha256(np.asarray(theta, float).tobytes())
-    leaves = [data.speeds, data.prior_values, *jax.tree_util.tree_leaves(data.base)]
-    for g in data.groups:
-        leaves += [g.sine_freq, g.sine_force, g.sine_sweep, g.sweep_index, g.sine_anchor.shape]
-    for leaf in leaves:
-        h.update(repr(leaf).encode() if isinstance(leaf, tuple) else
-                 np.ascontiguousarray(np.asarray(leaf)).tobytes())
-    return h.hexdigest(), structure
-
-
 def anchored(data: FitData, theta, structure: Structure) -> FitData:
     """`data` with every swept record's anchor computed at theta (unchanged where no record
     is swept)."""
     if not structure.sweeps:
         return data
-    key = _memo_key(theta, data, structure)
-    anchors = _MEMO.get(key)
-    if anchors is None:
-        anchors = tuple(np.asarray(a) for a in _anchor_kernel(jnp.asarray(theta, float), data,
-                                                              structure))
-        if len(_MEMO) >= _MEMO_SIZE:
-            _MEMO.pop(next(iter(_MEMO)))
-        _MEMO[key] = anchors
-    groups = tuple(eqx.tree_at(lambda g: g.sine_anchor, g, a)
+    anchors = _anchor_kernel(jnp.asarray(theta, float), data, structure)
+    groups = tuple(eqx.tree_at(lambda g: g.sine_anchor, g, np.asarray(a))
                    for g, a in zip(data.groups, anchors))
     return eqx.tree_at(lambda d: d.groups, data, groups)
 

@@ -155,50 +155,38 @@ _DISTINCT = 0.05  # scaled distance beyond which two optima are distinct
 
 def first_estimate(problem: Problem, points):
     """The data-driven first estimate (`_modal.py`): the first resonance read off the
-    records and the prior moved onto it (theta_m). Where the problem chooses its models
+    records, and `points` (quasi-random starts, start 0 the prior) moved onto it, one
+    program for all; the moved prior is theta_m. Where the problem chooses its models
     itself, they are chosen again at theta_m (`Problem.rechosen`): a record near the
     *measured* resonance is not on the linear model because the prior's resonance was
     elsewhere (measured on a default-set robustness drive whose resonance was 30 % above
     the prior's: the stage-1 records, chosen at the prior, cost 1.9e6 at the truth, and
     every stage-1 start stopped at its step limit).
-    `points` (start 0 the prior) are moved onto the resonance too (one program for all;
-    moved[0] is theta_m). Returns (problem, estimate or None, why_not, moved points or None,
-    mismatch)."""
+    Returns (problem, points, summary dict for the report: the estimate or why none)."""
     estimate, why_not = modal_estimate(problem)
     if estimate is None:
-        return problem, None, why_not, None, None
+        return problem, points, dict(estimate=None, why_not=why_not)
     moved, mismatch = modal_starts(problem, estimate, points, start_metric(problem))
     theta_m = np.asarray(moved[0], float)
     if problem.chooses_models and np.all(np.isfinite(theta_m)):
         problem = problem.rechosen(theta_m)
-    return problem, estimate, why_not, moved, mismatch
+    return problem, moved, dict(estimate=estimate.as_dict(), summary=estimate.summary(),
+                                mismatch_se=mismatch)
 
 
-def staged_starts(problem: Problem, starts: int, seed: int, options: SolveOptions,
-                  estimate=None, why_not: str | None = None, moved=None, mismatch=None):
-    """Starts for a fit with periodic-orbit records: `STAGE1_STARTS` (or `starts`, if more)
-    quasi-random starts, each moved onto the first resonance read off the records where
-    they bracket it (`estimate`, `first_estimate`: the data-driven first estimate), then
-    carried to the optimum of the records the cheaper models explain (the orbit records
-    masked, `_groups.masked_orbit_records`), as one batched solve. Where no record is left on
-    the cheaper models, there is no first stage: the full fit starts from the first
-    max(`starts`, `FULL_STARTS`) of those starts. The full fit starts
-    from each distinct optimum (lowest cost first, at most max(`starts`, `FULL_STARTS`));
-    each carries the number of quasi-random starts that reached it (its basin), so
-    agreement among starts is counted in the original starts.
+def staged_starts(problem: Problem, pts, starts: int, options: SolveOptions, modal: dict):
+    """Starts for a fit with periodic-orbit records, from `pts` (`STAGE1_STARTS`, or
+    `starts` if more, quasi-random starts moved onto the first resonance by
+    `first_estimate`, whose summary `modal` is): each carried to the optimum of the records
+    the cheaper models explain (the orbit records masked, `_groups.masked_orbit_records`),
+    as one batched solve. Where no record is left on the cheaper models, there is no first
+    stage: the full fit starts from the first max(`starts`, `FULL_STARTS`) of `pts`. The
+    full fit starts from each distinct optimum (lowest cost first, at most max(`starts`,
+    `FULL_STARTS`)); each carries the number of quasi-random starts that reached it (its
+    basin), so agreement among starts is counted in the original starts.
     Returns (points, basin counts, summary dict for the report)."""
     cheap = sum(m != "nonlinear" for m in problem.models)
     keep = max(1, starts, FULL_STARTS)
-    pts = start_points(problem, max(starts, STAGE1_STARTS), seed)
-    # The data-driven first estimate: every start moved onto the measured resonance
-    # (`moved`: already done by `first_estimate`).
-    modal = dict(estimate=None, why_not=why_not)
-    if estimate is not None:
-        if moved is None:
-            moved, mismatch = modal_starts(problem, estimate, pts, start_metric(problem))
-        pts = moved
-        modal = dict(estimate=estimate.as_dict(), summary=estimate.summary(),
-                     mismatch_se=mismatch)
     if not cheap:
         # No record on the cheaper models: a first stage on linearised records would fit
         # the wrong model (measured on two records at a fold: its single optimum had 4x
@@ -253,16 +241,15 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     """
     t0 = time.perf_counter()
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
-    stage1, weights, first = None, None, (problem, None, None, None, None)
+    stage1, weights = None, None
     if warm_start:
         # The models per record chosen at the measured resonance (`first_estimate`), and
         # the staged fit's starts moved onto it.
-        first = first_estimate(problem, start_points(problem, max(starts, STAGE1_STARTS),
-                                                     seed))
-        problem = first[0]
+        problem, pts, modal = first_estimate(
+            problem, start_points(problem, max(starts, STAGE1_STARTS), seed))
     if warm_start and "nonlinear" in problem.models:
         # A staged fit: the cheap records first, from many starts (`staged_starts`).
-        points, weights, stage1 = staged_starts(problem, starts, seed, options, *first[1:])
+        points, weights, stage1 = staged_starts(problem, pts, starts, options, modal)
     else:
         points = start_points(problem, starts, seed)
     if theta0 is not None:

@@ -49,8 +49,7 @@ class Structure:
     # Whether any periodic-orbit record carries a stepped sine's sweep direction (then its
     # orbit starts from `GroupData.sine_anchor`, see `_anchors.py`).
     sweeps: bool = False
-    # Harmonics of the periodic-orbit model (`_orbit_model`; more where the truncation
-    # check at the estimate asks for them, `_report.identify`).
+    # Harmonics of the periodic-orbit model (`_orbit_model`)
     orbit_harmonics: int = ORBIT_HARMONICS
 
 
@@ -163,8 +162,7 @@ def build_data(problem, is_frf):
     groups, layout, pos = [], {}, 0
     pad = {} if problem.pad is None else problem.pad["counts"]
     sweeps = any(sweep_direction(d) and m == "nonlinear" for d, m in zip(data, models))
-    harmonics = getattr(problem, "orbit_harmonics", ORBIT_HARMONICS)
-    width = 6 + 12 * harmonics if sweeps else 0
+    width = 6 + 12 * ORBIT_HARMONICS if sweeps else 0
     for gi, s in enumerate(problem.speeds):
         sine_idx, frf_idx, orbit, n_lines = _members(problem, is_frf, s)
         rows, slots, lines = (max(a, b) for a, b in zip(
@@ -210,7 +208,7 @@ def build_data(problem, is_frf):
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),
                           tuple(bool(x) for x in problem.is_log), len(problem.speeds),
-                          problem.may_use_first_order, sweeps, harmonics)
+                          problem.may_use_first_order, sweeps)
     return fit_data, structure, layout
 
 

@@ -35,7 +35,6 @@ from . import _model
 from ._choice import MODEL_ERROR, is_frf, keep_marginal, same_choice, screen
 from ._groups import build_data, used_rows
 from ._lm import NO_INFORMATION_STD
-from ._orbit_model import ORBIT_HARMONICS
 from ._parameters import DEFAULT_FIT, FIT_PARAMETERS, MAX_HARMONIC_FRACTION
 
 _build = eqx.filter_jit(bsfs_jax.build_system)
@@ -135,20 +134,14 @@ class Problem:
         if previous is not None:
             self.models, self.frf_left_out = keep_marginal(self, previous, model_error)
         self.info_floor = 1.0 / NO_INFORMATION_STD if self.prior_sigma is None else 0.0
-        self.orbit_harmonics = ORBIT_HARMONICS
         self.fit_data, self.structure, self.layout = build_data(self, is_frf)
-
-    def linearised(self) -> Problem:
-        """The same problem with every sine record on the linearised model (a cheap start
-        for the periodic-orbit fit)."""
-        return Problem(self.data, self.prior, self.fit, model="linear", priors=self.priors,
-                       frf_left_out=self.frf_left_out, **self._options)
 
     def without_orbit_records(self) -> Problem | None:
         """The records the linearised and first-order models explain (those not on the
-        periodic-orbit model), as a problem with the same parameters: the first stage of a
-        staged fit. Their models are chosen where this problem's were (the prior or
-        `model_theta`). None where no record is left or the parameters would differ (a
+        periodic-orbit model), as a problem with the same parameters (the records a staged
+        fit's first stage keeps; the fit itself masks the others in place,
+        `_groups.masked_orbit_records`). Their models are chosen where this problem's were
+        (the prior or `model_theta`). None where no record is left or the parameters would differ (a
         speed only the orbit records have)."""
         idx = [i for i, m in enumerate(self.models) if m != "nonlinear"]
         if not idx or len(idx) == len(self.data):

@@ -132,7 +132,8 @@ def check_model(result):
     branch = record_branches(problem, result.theta, orbit_model)
     result.model = problem.model_harmonics(result.theta, orbit_model)
     gate_steady_state(result)
-    gate_truncation(result, branch, [d.name for d in problem.data], problem.orbit_harmonics)
+    gate_truncation(result, branch, [d.name for d in problem.data],
+                    problem.structure.orbit_harmonics)
     return result, branch
 
 
@@ -172,7 +173,7 @@ def record_branches(problem: Problem, theta, models: dict | None = None) -> dict
                 np.stack([d.acceleration for d in recs]))
         labels, evidence, trunc, fitted = branches(system, *args,
                                                    [sweep_direction(d) for d in recs],
-                                                   harmonics=problem.orbit_harmonics)
+                                                   harmonics=problem.structure.orbit_harmonics)
         for j, i in enumerate(idx):
             if models is not None:
                 models[i] = fitted[j]
@@ -320,7 +321,7 @@ def report_dict(res: IdentificationResult) -> dict:
                               f"the simplest whose predicted error is below {MODEL_ERROR:g} "
                               "standard errors; chirp/random/hammer: FRF lines vs the "
                               "linearised FRF, a chirp's lines beyond that bound left out",
-            model_choice=fr.model_choice, orbit_harmonics=pb.orbit_harmonics,
+            model_choice=fr.model_choice, orbit_harmonics=pb.structure.orbit_harmonics,
             model_issues=[dict(kind=k, text=t) for k, t in zip(fr.model_issue_kinds,
                                                                 fr.model_issues)]),
         summary=summary_text(res),

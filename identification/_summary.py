@@ -110,7 +110,7 @@ def _branch_lines(res) -> list[str]:
     text = ", ".join(f"'{names[i]}' {b['branch']}" for i, b in sorted(br.items()))
     out = [f"Branches (periodic-orbit records; up- and down-sweep orbits at the estimate): "
            f"{text}."]
-    h = res.problem.orbit_harmonics
+    h = res.problem.structure.orbit_harmonics
     for i, b in sorted(br.items()):
         if b["branch"] == "unresolved":
             out.append(f"Record '{names[i]}': its fitted orbit is not one that a stepped sine "
