@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 # The main job: the paper's test determines only the series compliance; plan-test recommends
 # a test for the preloads; that test on a worn drive (bundled records) determines both
 # preloads and the three dampers, flags the preload loss, and compare.png shows the two fits
-# side by side; then one verified steady state.
+# side by side; then one verified steady state; last, the forecast of the worn drive.
 PRELOAD_FIT = nut_preload,bearing_preload,c_b,c_s,c_n
 demo: $(STAMP)
 	$(BIN)/bsfs identify --out out/identify
@@ -25,6 +25,7 @@ demo: $(STAMP)
 	$(BIN)/bsfs identify --data preload-loss --fit $(PRELOAD_FIT) --compare out/identify \
 		--out out/preload-loss
 	$(BIN)/bsfs simulate --frequency 500 --force 5000 --verify --out out/simulate
+	$(BIN)/bsfs predict --from out/preload-loss --force 100 --out out/predict
 
 test: $(STAMP)
 	$(BIN)/python tests/run_each.py

@@ -263,6 +263,29 @@ def parameter_rows(res: IdentificationResult) -> dict:
     return out
 
 
+def covariance_block(res: IdentificationResult) -> dict:
+    """The posterior covariance of the fitted coordinates theta, and how theta maps to the
+    values: what `bsfs predict` carries through the model (JSON: inf -> null)."""
+    pb, u = res.problem, res.uncertainty
+
+    def finite(a):
+        a = np.asarray(a, float)
+        return [None if not np.isfinite(x) else float(x) for x in a.ravel()]
+
+    p = pb.n_params
+    matrix = np.where(np.isfinite(u.scaled_std)[:, None] & np.isfinite(u.scaled_std)[None, :],
+                      u.covariance, np.nan)
+    return dict(
+        names=list(pb.names), keys=list(pb.keys), speed_rpm=list(pb.param_speeds),
+        transform=["log" if lg else "offset" for lg in pb.is_log],
+        prior=finite(pb.prior_values), theta=finite(res.fit.theta),
+        matrix=[finite(matrix[i]) for i in range(p)],
+        note="covariance of theta, the fitted coordinates: theta = log(value / prior) for "
+             "'log' parameters, value - prior (file units) for 'offset' ones; linearised at "
+             "the estimate, with the priors where given; null where the data and priors "
+             "leave a direction undetermined")
+
+
 def report_dict(res: IdentificationResult) -> dict:
     from ._summary import summary_text
 
@@ -287,6 +310,7 @@ def report_dict(res: IdentificationResult) -> dict:
         priors=priors,
         records=_record_rows(res),
         correlation=dict(names=list(pb.names), matrix=u.correlation.tolist()),
+        covariance=covariance_block(res),
         identifiability=dict(
             scaled_singular_values=(sv / sv[0]).tolist(), threshold_std=IDENTIFIABLE_STD,
             note="data only (no prior); scaled parameters: log-values (relative) and offsets "

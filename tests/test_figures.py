@@ -258,6 +258,23 @@ def test_response_panels():
 
 
 # -- continuation and atlas ----------------------------------------------------------------
+def test_forecast_figure():
+    br = _branch()
+    folds = br.bifurcations
+    q = {"peak_frequency_hz": dict(value=br.peak.p, ci95=[br.peak.p - 5, br.peak.p + 6]),
+         "peak_amplitude_um": dict(value=br.peak.amplitude * 1e6,
+                                   ci95=[br.peak.amplitude * 1e6 - 1, None]),
+         "fold_up_hz": dict(value=folds[0].p, ci95=[folds[0].p - 3, folds[0].p + 3]),
+         "fold_down_hz": dict(value=None, ci95=None)}
+    shifted = SimpleNamespace(p=br.p + 10, amplitude=br.amplitude * 1.05, stable=br.stable)
+    fig = plotting.forecast_figure({"estimate": br, "probe0+": shifted}, br, q, 100.0)
+    _save(fig, "forecast")
+    ax = fig.axes[0]
+    _labelled(ax)
+    _legend_clear(ax)
+    assert "[um]" in ax.get_ylabel() and "[Hz]" in ax.get_xlabel()
+
+
 def test_continuation_frc():
     fig = plotting.plot_continuation(_branch(), title="test")
     _save(fig, "continuation")

@@ -31,6 +31,7 @@ from ..machine import BSFSFamily, bsfs_family, linear_frf, modes
 from ..model import Sinusoid, build_system, vector_field
 from ..solvers import (
     HarmonicBalance,
+    ImplicitForward,
     ImplicitReverse,
     Shooting,
     SolverError,
@@ -185,3 +186,75 @@ def frc_peak_value(params, force_n, hint: PeakHint):
                              v, ode_adj)
     return amps[2]
 
+
+
+def point_hint(point, branch) -> PeakHint:
+    """`PeakHint` at a located point of `branch` (its peak's or a fold's `HostPoint`)."""
+    return PeakHint(jnp.asarray(point.u), jnp.asarray(point.tangent),
+                    jnp.asarray(point.jacobian), jnp.asarray(branch.scale),
+                    jnp.asarray(branch.info["p_scale"]),
+                    jnp.asarray(point.p(branch.info["p_scale"])), branch.method)
+
+
+def _residual(hint, ode_adj):
+    return lambda v, fam: family_residual(fam, vector_field, hint.method, hint.scale,
+                                          hint.p_scale, 1, v, ode_adj)
+
+
+def fold_frequency_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
+    """The frequency [Hz] of a located fold of the FRC at `force_n`, differentiable
+    (reverse mode) in `params` and `force_n`.
+
+    At a fold the frequency is extremal along the branch (dp/ds = 0), as the amplitude is at
+    the peak, so the same argument holds (module docstring): the derivative of the fold's
+    frequency is that of p at the branch point that stays on the hyperplane normal to the
+    branch there, G(v; theta) = [R(v; theta), t* . (v - v*)] = 0. This is the Moore-Spence
+    result dp/dtheta = -psi^T R_theta / psi^T R_p without forming psi. The Newton matrix is
+    G's own: R's rows from the located point, the border row t* (the corrector's border was
+    the previous point's tangent). `adjoint`: `ImplicitReverse` (jax.grad) or
+    `ImplicitForward` (jax.jacfwd)."""
+    family = BSFSFamily(params, hint.frequency_hz, force_n)
+    v_star = jax.lax.stop_gradient(hint.v)
+    t_star = jax.lax.stop_gradient(hint.tangent)
+    res = _residual(hint, adjoint.ode_adjoint())
+
+    def augmented(v, fam):
+        return jnp.concatenate([res(v, fam), jnp.dot(t_star, v - v_star)[None]])
+
+    jac = jax.lax.stop_gradient(hint.jacobian).at[-1].set(t_star)
+    v = adjoint.attach(augmented, family, v_star, jac)
+    return v[-1] * hint.p_scale
+
+
+def frc_peak_frequency_value(params, force_n, hint: PeakHint):
+    """The frequency [Hz] of the located FRC peak, differentiable (reverse mode).
+
+    At the peak the frequency is not extremal along the branch, so the hyperplane argument
+    does not hold; the peak is the solution of the square system
+    H(v; theta) = [R(v; theta), g(v; theta)] = 0 with g = grad_v A . t(v), the amplitude's
+    rate along the branch's tangent t(v) (the null vector of R_v, normalised by t* . t = 1:
+    one bordered solve). H's Jacobian and its reverse pass differentiate through R_v, so
+    this costs second derivatives of R, taken in forward mode throughout (a shooting
+    residual's ODE solve supports one mode only): differentiate with `jax.jacfwd`."""
+    family = BSFSFamily(params, hint.frequency_hz, force_n)
+    v_star = jax.lax.stop_gradient(hint.v)
+    t_star = jax.lax.stop_gradient(hint.tangent)
+    ode_adj = dfx.ForwardMode()
+    res = _residual(hint, ode_adj)
+    e_last = jnp.zeros(v_star.shape[0]).at[-1].set(1.0)
+
+    def rate(v, fam):
+        r_v = jax.jacfwd(res)(v, fam)
+        t = jnp.linalg.solve(jnp.concatenate([r_v, t_star[None]]), e_last)
+        grad_a = jax.jacfwd(lambda w: family_amplitudes(
+            fam, vector_field, hint.method, hint.scale, hint.p_scale, 1, w, ode_adj)[2])(v)
+        return jnp.dot(grad_a, t)
+
+    def system(v, fam):
+        return jnp.concatenate([res(v, fam), rate(v, fam)[None]])
+
+    fam0 = jax.lax.stop_gradient(family)
+    jac = jnp.concatenate([jax.lax.stop_gradient(hint.jacobian)[:-1],
+                           jax.jacfwd(rate)(v_star, fam0)[None]])
+    v = ImplicitForward().attach(system, family, v_star, jac)
+    return v[-1] * hint.p_scale

@@ -11,6 +11,7 @@ from ._continuation import plot_continuation as plot_continuation
 from ._continuation import stability_segments as stability_segments
 from ._design import optimization_summary as optimization_summary
 from ._design import tornado as tornado
+from ._forecast import forecast_figure as forecast_figure
 from ._frf_fit import frf_fit_figure as frf_fit_figure
 from ._identification import correlation_figure as correlation_figure
 from ._identification import fit_figure as fit_figure

@@ -82,7 +82,9 @@ class Bifurcation:
       of the branch's amplitude coordinate; `amplitudes`: of every coordinate;
     - `multipliers`: Floquet multipliers there (largest modulus first);
     - `index`: the branch point just before the event; `located`: whether the location
-      converged (else `p` is the best bracket estimate).
+      converged (else `p` is the best bracket estimate);
+    - `point`: the corrected `HostPoint` there (unknowns, tangent, Newton matrix: what the
+      implicit derivative of a fold's parameter value needs).
     """
 
     kind: str
@@ -93,6 +95,7 @@ class Bifurcation:
     multipliers: np.ndarray
     index: int
     located: bool
+    point: HostPoint | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def as_dict(self):
         return {"type": self.kind, "p": self.p, "amplitude": self.amplitude,

@@ -61,7 +61,7 @@ def locate_event(kernel, before, after, index, k, kind, iters):
     return Bifurcation(kind=kind, p=best.p(kernel.p_scale), state=best.state,
                        amplitude=float(best.amplitudes[kernel.amplitude_index]),
                        amplitudes=best.amplitudes, multipliers=mu, index=int(index),
-                       located=located)
+                       located=located, point=best)
 
 
 def locate_peak(kernel, before, after, index, iters):

@@ -59,7 +59,8 @@ class ImplicitReverse(AbstractOrbitAdjoint):
 
 def _zeros_for_none(primal, tangent):
     return jax.tree_util.tree_map(
-        lambda p, t: jnp.zeros_like(p) if t is None else t, primal, tangent,
+        lambda p, t: t if t is not None else (None if p is None else jnp.zeros_like(p)),
+        primal, tangent,
         is_leaf=lambda x: x is None)
 
 

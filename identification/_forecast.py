@@ -1,0 +1,221 @@
+"""From fit to forecast: what the identified drive will do, with intervals (`bsfs predict`).
+
+An identification's output folder (`identified.toml`, `report.json` with its `covariance`)
+gives the estimate theta_hat of the fitted coordinates and their posterior covariance C.
+Each forecast quantity q(theta) is a differentiable function of theta through the model
+(`identified.toml` with the fitted keys replaced), and its interval comes from:
+
+- **delta**: q_hat +- 1.96 sqrt(g^T C g), g = dq/dtheta by exact (implicit) derivatives:
+  the modal quantities through the equilibrium and `eigh`; the FRC peak and folds on the
+  continued branch (`bsfs_jax.design`: the peak amplitude and the folds through the
+  hyperplane normal to the branch, the peak frequency through the augmented system);
+- **checked at second order**: a cheap quantity (modal, lift-off) by its exact Hessian, a
+  costly one (FRC peak, folds) by its second differences at probes theta_hat +- 1.96
+  sqrt(lambda_i) u_i along the covariance's least determined directions (one continuation
+  per probe serves every FRC quantity). Where the second-order term's std exceeds
+  `SECOND_ORDER_TOL` of the linear one the interval comes from draws instead: of the model
+  itself (vmapped) for a cheap quantity, of the probed quadratic model for a costly one.
+  Where a fold appears or disappears at a probe, that side of its interval is left open.
+
+`dominated_by`: the fitted parameter whose own variance contributes most, g_i^2 C_ii.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+Z95 = 1.959963984540054
+SECOND_ORDER_TOL = 0.1  # second-order std / linear std beyond which the delta is doubtful
+DRAWS = 4000
+DRAW_SEED = 0
+
+
+class ForecastError(ValueError):
+    """Bad input to a forecast: one line naming the cause and what to do."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Identified:
+    """What a forecast needs from an identification folder."""
+
+    folder: Path
+    params: object  # BallScrewParams of identified.toml
+    names: tuple
+    keys: tuple
+    log: np.ndarray
+    prior: np.ndarray
+    theta: np.ndarray
+    covariance: np.ndarray
+    report: dict
+
+    def params_at(self, theta):
+        """The model at theta (traceable): identified.toml with the fitted keys set."""
+        import jax.numpy as jnp
+
+        p = self.params
+        for i, key in enumerate(self.keys):
+            th = theta[i]
+            value = self.prior[i] * jnp.exp(th) if self.log[i] else self.prior[i] + th
+            p = p.replace(key, value)
+        return p
+
+
+def load_identified(folder, speed_rpm: float | None = None) -> Identified:
+    """Read `folder` (a `bsfs identify --out` folder). Refuses a folder that is not one, a
+    fit that did not converge and a report without the covariance, each in one line."""
+    import bsfs_jax
+
+    folder = Path(folder)
+    report_path, toml_path = folder / "report.json", folder / "identified.toml"
+    if not folder.is_dir() or not report_path.is_file() or not toml_path.is_file():
+        raise ForecastError(f"{folder}: not an identification output folder (it needs "
+                            "identified.toml and report.json); run `bsfs identify ... --out "
+                            f"{folder}` first")
+    try:
+        report = json.loads(report_path.read_text(encoding="utf-8"))
+        fit, cov = report["fit"], report.get("covariance")
+    except (ValueError, KeyError, TypeError):
+        raise ForecastError(f"{report_path}: not a report.json written by `bsfs identify` "
+                            "(unreadable or without its 'fit' section); identify again") from None
+    if not fit.get("converged"):
+        raise ForecastError(
+            f"{folder}: the identification did not converge ({fit.get('convergence', '?')}); "
+            "a forecast from it would not be trustworthy. Identify again with records "
+            "through the resonance (`bsfs plan-test` recommends them), or fit fewer "
+            "parameters (--fit)")
+    if cov is None:
+        raise ForecastError(f"{report_path}: no 'covariance' section (written by an older "
+                            "bsfs); run `bsfs identify` again to refresh the folder")
+    params = bsfs_jax.load_params(toml_path)
+    if speed_rpm is not None:
+        params = params.replace("thermal.speed_rpm", float(speed_rpm))
+    speed = float(params.get("thermal.speed_rpm"))
+    matrix = np.array([[np.nan if x is None else x for x in row] for row in cov["matrix"]],
+                      float)
+    keep = [i for i, s in enumerate(cov["speed_rpm"]) if s is None or abs(s - speed) < 1e-9]
+    keep = [i for i in keep if np.isfinite(matrix[i, i])]
+    if not keep:
+        raise ForecastError(f"{report_path}: no fitted parameter has a finite variance at "
+                            f"{speed:g} r/min; nothing to carry into a forecast")
+    idx = np.asarray(keep)
+    return Identified(folder, params, tuple(cov["names"][i] for i in keep),
+                      tuple(cov["keys"][i] for i in keep),
+                      np.asarray([cov["transform"][i] == "log" for i in keep]),
+                      np.asarray([cov["prior"][i] for i in keep], float),
+                      np.asarray([cov["theta"][i] for i in keep], float),
+                      matrix[np.ix_(idx, idx)], report)
+
+
+@dataclasses.dataclass
+class Quantity:
+    """One forecast quantity (`prediction.json`'s `quantities`)."""
+
+    name: str
+    unit: str
+    value: float | None
+    ci95: list | None
+    method: str
+    dominated_by: str | None
+    reason: str | None = None
+    extra: dict = dataclasses.field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        out = dict(name=self.name, unit=self.unit, value=self.value, ci95=self.ci95,
+                   method=self.method, dominated_by=self.dominated_by)
+        if self.reason:
+            out["reason"] = self.reason
+        out.update(self.extra)
+        return out
+
+
+def _dominant(g, ident):
+    contrib = g**2 * np.diag(ident.covariance)
+    return ident.names[int(np.argmax(contrib))] if np.any(contrib > 0) else None
+
+
+def _quantity(name, unit, v, ci, method, g, ident, scale, extra):
+    sd = float(np.sqrt(max(g @ ident.covariance @ g, 0.0)))
+    extra = dict(std=sd * scale, **extra)
+    ci = [None if c is None else float(c) * scale for c in ci]
+    return Quantity(name, unit, float(v) * scale, ci, method, _dominant(g, ident), extra=extra)
+
+
+def from_hessian(name, unit, value, grad, hess, ident: Identified, draw, *, scale=1.0,
+                 method="delta") -> Quantity:
+    """A cheap quantity (modal, linearised lift-off) with its exact gradient and Hessian.
+
+    The second-order term's std sqrt(tr((H C)^2) / 2) against the linear std decides: below
+    `SECOND_ORDER_TOL` the delta interval; above it the linearisation is doubtful and the
+    interval is the 2.5-97.5 % range of `DRAWS` draws of theta from the covariance pushed
+    through the model (`draw`: a vmapped q(theta)), method "draws"."""
+    g, h, c = np.asarray(grad, float), np.asarray(hess, float), ident.covariance
+    sd = float(np.sqrt(max(g @ c @ g, 0.0)))
+    hc = h @ c
+    sd2 = float(np.sqrt(max(0.5 * np.trace(hc @ hc), 0.0)))
+    ratio = sd2 / sd if sd > 0 else (0.0 if sd2 == 0 else np.inf)
+    extra = dict(second_order=ratio)
+    if ratio <= SECOND_ORDER_TOL:
+        return _quantity(name, unit, value, [value - Z95 * sd, value + Z95 * sd], method, g,
+                         ident, scale, extra)
+    rng = np.random.default_rng(DRAW_SEED)
+    theta = rng.multivariate_normal(ident.theta, c, size=DRAWS, method="eigh")
+    q = np.asarray(draw(theta), float)
+    lo, hi = np.percentile(q, [2.5, 97.5])
+    extra.update(draws=DRAWS, draws_std=float(np.std(q)) * scale)
+    return _quantity(name, unit, value, [lo, hi], "draws", g, ident, scale, extra)
+
+
+def probe_steps(ident: Identified, k: int = 3) -> np.ndarray:
+    """(k, p): 1.96 sqrt(lambda_i) u_i along the covariance's k least determined directions
+    (largest eigenvalues): where the second-order terms of a quantity are largest."""
+    w, v = np.linalg.eigh(ident.covariance)
+    order = np.argsort(w)[::-1][:k]
+    return np.stack([Z95 * np.sqrt(max(w[i], 0.0)) * v[:, i] for i in order])
+
+
+def from_probes(name, unit, value, grad, ident: Identified, steps, at_plus, at_minus, *,
+                scale=1.0, method="delta") -> Quantity:
+    """A costly quantity (FRC peak, folds) with its exact gradient, checked at the probes
+    theta_hat +- steps[i] (`probe_steps`; `at_plus`/`at_minus`: q there, None where the
+    quantity does not exist there, e.g. a fold gone).
+
+    The second differences give the quantity's curvature along each probed direction,
+    d_i = q(+) + q(-) - 2 q_hat; the second-order std sqrt(sum_i (d_i / 1.96^2)^2 / 2)
+    against the linear std decides as in `from_hessian`; where doubtful, the interval is
+    the 2.5-97.5 % range of the quadratic model q_hat + g.delta + sum_i c_i (u_i.delta)^2
+    over draws of delta (method "quadratic (probed)"). Where the quantity vanishes at a
+    probe (a fold appears or disappears inside the interval), the side it moves to there
+    is left open (method "probed: vanishes")."""
+    g, c = np.asarray(grad, float), ident.covariance
+    sd = float(np.sqrt(max(g @ c @ g, 0.0)))
+    v = float(value)
+    lo, hi = v - Z95 * sd, v + Z95 * sd
+    gone = [(i, sgn) for i in range(len(steps))
+            for sgn, q in ((1.0, at_plus[i]), (-1.0, at_minus[i])) if q is None]
+    extra = dict(probes=len(steps))
+    if gone:
+        ci = [lo, hi]
+        for i, sgn in gone:
+            ci[1 if sgn * float(g @ steps[i]) >= 0 else 0] = None
+        extra["vanishes_at_probes"] = len(gone)
+        return _quantity(name, unit, v, ci, "probed: vanishes", g, ident, scale, extra)
+    d = np.array([at_plus[i] + at_minus[i] - 2 * v for i in range(len(steps))], float)
+    slope = np.array([(at_plus[i] - at_minus[i]) / 2 for i in range(len(steps))], float)
+    lin = np.array([float(g @ s) for s in steps])
+    sd2 = float(np.sqrt(0.5 * np.sum((d / Z95**2) ** 2)))
+    ratio = sd2 / sd if sd > 0 else (0.0 if sd2 == 0 else np.inf)
+    extra.update(second_order=ratio, probe_slope_error=float(
+        np.max(np.abs(slope - lin)) / (Z95 * sd)) if sd > 0 else None)
+    if ratio <= SECOND_ORDER_TOL:
+        return _quantity(name, unit, v, [lo, hi], method, g, ident, scale, extra)
+    rng = np.random.default_rng(DRAW_SEED)
+    delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
+    norm2 = np.sum(steps**2, axis=1)
+    coord = delta @ steps.T / norm2  # (u_i . delta) in units of the probe step
+    q = v + delta @ g + 0.5 * np.sum(d[None, :] * coord**2, axis=1)
+    lo, hi = np.percentile(q, [2.5, 97.5])
+    return _quantity(name, unit, v, [lo, hi], "quadratic (probed)", g, ident, scale, extra)

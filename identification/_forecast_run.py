@@ -1,0 +1,328 @@
+"""The forecast's quantities (`forecast`): modal, FRC peak and folds, lift-off, preloads,
+and the health verdict per joint. See `_forecast.py` for the intervals."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ._forecast import (
+    ForecastError,
+    Identified,
+    Quantity,
+    from_hessian,
+    from_probes,
+    probe_steps,
+)
+
+# A force beyond this many times the larger preload drives the joints far out of contact,
+# beyond what the model's Hertz joints were validated for (physics.md): refused.
+MAX_FORCE_PRELOADS = 10.0
+# A joint keeping at least this fraction of its nominal preload (the interval's lower end)
+# is called healthy.
+HEALTHY_FRACTION = 0.8
+GRID = 2001
+MARGIN_HALF_WIDTHS = 4.0
+PROBES = 3  # least determined directions probed for the FRC quantities' second order
+
+
+def _jax():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    return jax
+
+
+def _modal(ident: Identified):
+    """natural_frequency_1_hz, damping_ratio_1, static_stiffness_n_per_um: exact gradients
+    and Hessians, and where the second-order term is large, vmapped draws (`from_hessian`)."""
+    jax = _jax()
+    import jax.numpy as jnp
+
+    from bsfs_jax import build_system, modes
+
+    def fn(theta):
+        m = modes(build_system(ident.params_at(theta)))
+        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
+
+    theta = jnp.asarray(ident.theta)
+    value, jac = np.asarray(fn(theta)), np.asarray(jax.jacfwd(fn)(theta))
+    hess = np.asarray(jax.hessian(fn)(theta))
+    many = jax.jit(jax.vmap(fn))
+    out = []
+    for k, (name, unit, scale) in enumerate((("natural_frequency_1_hz", "Hz", 1.0),
+                                             ("damping_ratio_1", "-", 1.0),
+                                             ("static_stiffness_n_per_um", "N/um", 1e-6))):
+        out.append(from_hessian(name, unit, value[k], jac[k], hess[k], ident,
+                                lambda th, k=k: np.asarray(many(jnp.asarray(th)))[:, k],
+                                scale=scale))
+    return out, float(value[0])
+
+
+def _frc(params, force, start, stop, settings):
+    """(hint, branch) of the FRC; a band without an interior peak is refused."""
+    from bsfs_jax.design._orbit import locate_frc_peak
+    from bsfs_jax.solvers import SolverError
+
+    try:
+        return locate_frc_peak(params, force, settings, start_hz=start, stop_hz=stop)
+    except SolverError as exc:
+        raise ForecastError(f"no resonance peak between {start:g} and {stop:g} Hz at "
+                            f"{force:g} N ({str(exc).split(':')[0]}); choose a band around the "
+                            "first natural frequency (--start/--stop)") from None
+
+
+def _folds(branch):
+    """(fold_up, fold_down): the fold where an up-sweep jumps (the first in branch order,
+    from the low end) and where a down-sweep jumps (the last); None where there is none."""
+    folds = [b for b in branch.bifurcations if b.kind == "fold" and b.point is not None]
+    if len(folds) < 2:
+        return None, None
+    return folds[0], folds[-1]
+
+
+def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
+    jax = _jax()
+    import jax.numpy as jnp
+
+    from bsfs_jax.design._orbit import (
+        fold_frequency_value,
+        frc_peak_frequency_value,
+        frc_peak_value,
+        point_hint,
+    )
+
+    theta = jnp.asarray(ident.theta)
+    hint, branch = _frc(ident.params_at(ident.theta), force, start, stop, settings)
+    shooting = type(branch.method).__name__ == "Shooting"
+    # The path ends are continued by the method that served the estimate (no failed
+    # harmonic-balance attempt first where it fell back to shooting).
+    settings = dataclasses.replace(settings, frc_method="shooting") if shooting else (
+        dataclasses.replace(settings, frc_method="hb", frc_harmonics=branch.method.harmonics))
+    specs = [("peak_frequency_hz", "Hz", 1.0, lambda th, h: frc_peak_frequency_value(
+        ident.params_at(th), force, h), jax.jacfwd, hint),
+        ("peak_amplitude_um", "um", 1e6, lambda th, h: frc_peak_value(
+            ident.params_at(th), force, h), jax.grad, hint)]
+    up, down = _folds(branch)
+    for name, fold in (("fold_up_hz", up), ("fold_down_hz", down)):
+        if fold is not None:
+            specs.append((name, "Hz", 1.0, lambda th, h: fold_frequency_value(
+                ident.params_at(th), force, h), jax.grad, point_hint(fold.point, branch)))
+    # The probes need the peak and folds only: their branches are continued over the
+    # features +- `MARGIN_HALF_WIDTHS` half-power widths (single-valued there, so the
+    # linear start lies on the one branch), not the whole band.
+    marks = [float(h.frequency_hz) for *_, h in specs]
+    width = MARGIN_HALF_WIDTHS * max(marks) * damping_ratio
+    sub = (max(start, min(marks) - width), min(stop, max(marks) + width))
+    steps = probe_steps(ident, min(PROBES, len(ident.names)))
+    curves, read = {"estimate": branch}, {}
+    for i, step in enumerate(steps):
+        for sgn in (1.0, -1.0):
+            try:
+                _, br = _frc(ident.params_at(ident.theta + sgn * step), force, *sub, settings)
+            except ForecastError:
+                br = None  # no peak inside the sub-band there: every FRC quantity vanishes
+            curves[f"probe{i}{'+' if sgn > 0 else '-'}"] = br
+            read[(i, sgn)] = {name: None if br is None else _read(name, br)
+                              for name, *_ in specs}
+    out = []
+    for name, unit, scale, fn, diff, h in specs:
+        value = float(fn(theta, h))
+        grad = np.asarray(diff(fn)(theta, h))
+        q = from_probes(name, unit, value, grad, ident, steps,
+                        [read[(i, 1.0)][name] for i in range(len(steps))],
+                        [read[(i, -1.0)][name] for i in range(len(steps))], scale=scale)
+        if name == "peak_frequency_hz" and shooting:
+            q.extra["note"] = ("the joints lose contact at the peak (the curve is continued "
+                               "by shooting): the peak frequency's second derivatives are "
+                               "approximate there, its gradient to about 2 %")
+        out.append(q)
+    curves = {k: v for k, v in curves.items() if v is not None}
+    for name, fold in (("fold_up_hz", up), ("fold_down_hz", down)):
+        if fold is None:
+            out.append(Quantity(name, "Hz", None, None, "none", None, reason=(
+                f"the FRC at {force:g} N has no fold between {start:g} and {stop:g} Hz: the "
+                "response is single-valued, an up- or down-sweep does not jump")))
+    return out, curves
+
+
+def _read(name, branch):
+    if name == "peak_frequency_hz":
+        return branch.peak.p if branch.peak else None
+    if name == "peak_amplitude_um":
+        return branch.peak.amplitude if branch.peak else None
+    up, down = _folds(branch)
+    fold = up if name == "fold_up_hz" else down
+    return None if fold is None else fold.p
+
+
+def joint_windows(system, x_eq):
+    """{joint: (margin [m], relative displacement at equilibrium)}: how far each joint's
+    relative displacement may move from equilibrium before a side's contact deformation
+    reaches zero (`physics.contact_deformations`), from the pair's geometry."""
+    import jax.numpy as jnp
+
+    out = {}
+    for joint, pair, u_eq in (("bearing", system.bearing, x_eq[0]),
+                              ("nut", system.nut, x_eq[2] - x_eq[1])):
+        root = jnp.sqrt(pair.reach**2 - pair.radial_sq)
+        u_hi = pair.cos_helix * (pair.axial - root)
+        out[joint] = jnp.minimum(u_hi - u_eq, u_eq + u_hi)
+    return out
+
+
+def _liftoff(ident, start, stop):
+    """liftoff_force_n: the smallest force amplitude at which a joint's linearised relative
+    displacement reaches its contact window anywhere in the band (delta method; the
+    frequency of the largest joint receptance is located without gradient, the envelope
+    theorem makes that exact for the linearised value)."""
+    jax = _jax()
+    import jax.numpy as jnp
+
+    from bsfs_jax import build_system
+    from bsfs_jax.machine import linear_frf, linearise
+
+    def receptances(system, f):
+        h = linear_frf(system, f)
+        return {"bearing": jnp.abs(h[:, 0]), "nut": jnp.abs(h[:, 2] - h[:, 1])}
+
+    def forces(theta, f_at):
+        system = build_system(ident.params_at(theta))
+        x_eq = linearise(system)[3]
+        win = joint_windows(system, x_eq)
+        return jnp.stack([win[j] / receptances(system, f_at[k:k + 1])[j][0]
+                          for k, j in enumerate(("bearing", "nut"))])
+
+    system = build_system(ident.params_at(ident.theta))
+    grid = np.linspace(start, stop, GRID)
+    rec = {j: np.asarray(v) for j, v in receptances(system, jnp.asarray(grid)).items()}
+    f_at = []
+    for j in ("bearing", "nut"):
+        k = int(np.argmax(rec[j]))
+        fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, GRID - 1)], 401)
+        f_at.append(float(fine[np.argmax(np.asarray(receptances(system, jnp.asarray(fine))[j]))]))
+    f_at = jnp.asarray(f_at)
+    theta = jnp.asarray(ident.theta)
+    values = np.asarray(forces(theta, f_at))
+    jac = np.asarray(jax.jacfwd(forces)(theta, f_at))
+    k = int(np.argmin(values))
+    joint = ("bearing", "nut")[k]
+    hess = np.asarray(jax.hessian(forces)(theta, f_at))
+    many = jax.jit(jax.vmap(forces, in_axes=(0, None)))
+
+    def lift(i, name):
+        return from_hessian(name, "N", values[i], jac[i], hess[i], ident,
+                            lambda th: np.asarray(many(jnp.asarray(th), f_at))[:, i],
+                            method="delta (linearised)")
+
+    q = lift(k, "liftoff_force_n")
+    q.extra.update(joint=joint, frequency_hz=float(f_at[k]),
+                   per_joint={j: float(values[i]) for i, j in enumerate(("bearing", "nut"))},
+                   note="the force amplitude at which the linearised joint displacement "
+                        "reaches the end of its contact window at the joint's resonance; "
+                        "the Hertz joints soften as a side unloads, so the nonlinear value "
+                        "is lower")
+    per = [lift(i, f"liftoff_force_{j}_n") for i, j in enumerate(("bearing", "nut"))]
+    return q, per
+
+
+def _preloads(ident: Identified, nominal):
+    rows = {r: ident.report["parameters"].get(r) for r in ("nut_preload", "bearing_preload")}
+    out = []
+    for name, row in rows.items():
+        key = f"{name.split('_')[0]}.preload_n"
+        nom = float(nominal.get(key))
+        if row is None:
+            value = float(ident.params.get(key))
+            out.append(Quantity(f"{name}_n", "N", value, None, "fixed (not fitted)", None,
+                                reason="not in the identification's fit set: the value is "
+                                       "the prior's, so preload health is not assessed",
+                                extra=dict(nominal_n=nom)))
+            continue
+        lo, hi = row["ci95"] if row.get("ci95") else (None, None)
+        q = Quantity(f"{name}_n", "N", row["value"], None if lo is None else [lo, hi],
+                     f"identification ({row.get('ci_method', 'linearised')})", name)
+        q.extra.update(
+            nominal_n=nom, retained_percent=100.0 * row["value"] / nom,
+            retained_ci95_percent=None if lo is None else [100 * lo / nom, 100 * hi / nom],
+            loss_n=nom - row["value"],
+            loss_significant=bool(hi is not None and hi < nom))
+        out.append(q)
+    return out
+
+
+def health(quantities: dict, force: float) -> dict:
+    """Per joint: preload retained (with its interval), the lift-off margin at the working
+    force, and one verdict line that never says more than the intervals allow."""
+    out = {}
+    for joint in ("nut", "bearing"):
+        pre = quantities[f"{joint}_preload_n"]
+        lift = quantities[f"liftoff_force_{joint}_n"]
+        lines = []
+        if pre.ci95 is None:
+            lines.append("preload not assessed (not fitted)")
+            verdict = "not assessed"
+        else:
+            lo, hi = pre.extra["retained_ci95_percent"]
+            if hi < 100.0:
+                verdict = "preload loss significant"
+            elif lo >= 100 * HEALTHY_FRACTION:
+                verdict = "healthy"
+            else:
+                verdict = "undetermined"
+            lines.append(f"preload {pre.extra['retained_percent']:.0f} % of nominal "
+                         f"(95 % CI {lo:.0f}-{hi:.0f} %)")
+        l_lo, l_hi = lift.ci95
+        if force >= l_hi:
+            contact = f"contact loss expected above {l_hi:.0f} N"
+        elif force < l_lo:
+            contact = f"contact kept at {force:g} N (lift-off from {l_lo:.0f} N)"
+        else:
+            contact = f"contact loss possible at {force:g} N (lift-off {l_lo:.0f}-{l_hi:.0f} N)"
+        out[joint] = dict(verdict=verdict, contact=contact,
+                          line=f"{joint}: {verdict}; " + "; ".join(lines + [contact]),
+                          margin_n=None if lift.value is None else lift.value - force,
+                          margin_ci95_n=[l_lo - force, l_hi - force])
+    return out
+
+
+def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
+             nominal=None, settings=None) -> dict:
+    """The forecast (`prediction.json`'s content less the file fields): quantities, health,
+    the FRC branches (estimate, path ends) and the nominal drive's."""
+    import bsfs_jax
+    from bsfs_jax.design import OrbitSettings
+
+    nominal = bsfs_jax.preset() if nominal is None else nominal
+    force = float(force_n)
+    top = MAX_FORCE_PRELOADS * max(float(ident.params.get("nut.preload_n")),
+                                   float(ident.params.get("bearing.preload_n")))
+    if not (np.isfinite(force) and 0.0 < force <= top):
+        raise ForecastError(f"--force {force_n}: outside the model's plausible range (0, "
+                            f"{top:g}] N ({MAX_FORCE_PRELOADS:g} x the larger preload); "
+                            "choose a working force in that range")
+    settings = OrbitSettings() if settings is None else settings
+    modal, f1 = _modal(ident)
+    start = settings.frc_band[0] * f1 if start_hz is None else float(start_hz)
+    stop = settings.frc_band[1] * f1 if stop_hz is None else float(stop_hz)
+    if not (0 < start < f1 < stop):
+        raise ForecastError(f"the band {start:g}-{stop:g} Hz holds no resonance: the "
+                            f"identified first natural frequency is {f1:.1f} Hz; choose "
+                            "--start and --stop around it")
+    zeta = next(q.value for q in modal if q.name == "damping_ratio_1")
+    frc, curves = _frc_quantities(ident, force, start, stop, settings, zeta)
+    lift, per_joint = _liftoff(ident, start, stop)
+    pre = _preloads(ident, nominal)
+    quantities = modal + frc + [lift] + pre
+    by_name = {q.name: q for q in quantities + per_joint}
+    nominal_branch = None
+    try:
+        nominal_branch = _frc(nominal.replace("thermal.speed_rpm",
+                                              ident.params.get("thermal.speed_rpm")),
+                              force, start, stop, settings)[1]
+    except ForecastError:
+        pass  # the nominal drive's peak may lie outside the band: plotted without it
+    return dict(force_n=force, band_hz=[start, stop], quantities=quantities,
+                per_joint_liftoff=per_joint, health=health(by_name, force),
+                curves=curves, nominal_branch=nominal_branch)

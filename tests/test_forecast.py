@@ -1,0 +1,142 @@
+"""`bsfs predict`: the forecast of the bundled worn drive (data/worn.toml), its intervals
+against a Monte Carlo of the same covariance and against the truth, and its refusals."""
+
+import json
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import bsfs_jax
+from bsfs_jax.cli import main
+from bsfs_jax.design._orbit import OrbitSettings, locate_frc_peak
+from identification._forecast import load_identified
+
+jax.config.update("jax_enable_x64", True)
+
+PRELOAD_FIT = "nut_preload,bearing_preload,c_b,c_s,c_n"
+FORCE = 30.0  # below the worn drive's lift-off (about 60 N): a single-valued FRC
+NAMES = ("natural_frequency_1_hz", "damping_ratio_1", "static_stiffness_n_per_um",
+         "peak_frequency_hz", "peak_amplitude_um", "fold_up_hz", "fold_down_hz",
+         "liftoff_force_n", "nut_preload_n", "bearing_preload_n")
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("forecast")
+    ident = root / "identify"
+    assert main(["identify", "--data", "preload-loss", "--fit", PRELOAD_FIT,
+                 "--out", str(ident)]) == 0
+    pred = root / "predict"
+    assert main(["predict", "--from", str(ident), "--force", str(FORCE),
+                 "--out", str(pred)]) == 0
+    return ident, pred, json.loads((pred / "prediction.json").read_text())
+
+
+def test_prediction_holds_every_quantity_with_an_interval_around_it(folders):
+    ident, pred, data = folders
+    assert (pred / "prediction.png").stat().st_size > 10_000
+    q = {x["name"]: x for x in data["quantities"]}
+    assert set(NAMES) <= set(q)
+    for name in NAMES:
+        x = q[name]
+        assert {"unit", "value", "ci95", "method", "dominated_by"} <= set(x)
+        if x["value"] is None:
+            assert x["reason"] and x["ci95"] is None  # no fold at this force, and why
+            continue
+        lo, hi = x["ci95"]
+        assert lo < x["value"] < hi, name
+    assert q["fold_up_hz"]["value"] is None and "no fold" in q["fold_up_hz"]["reason"]
+    assert q["damping_ratio_1"]["dominated_by"] in ("c_b", "c_s", "c_n")
+    # The worn drive (truth: 60 % and 77 % of nominal) is called worn, joint by joint.
+    for joint, truth in (("nut", 60.0), ("bearing", 76.7)):
+        assert data["health"][joint]["verdict"] == "preload loss significant"
+        lo, hi = q[f"{joint}_preload_n"]["retained_ci95_percent"]
+        assert lo < 100 and hi < 100 and abs(q[f"{joint}_preload_n"]["retained_percent"]
+                                             - truth) < 1.5
+    # 30 N is below both joints' lift-off force: contact is kept.
+    assert all("contact kept" in data["health"][j]["contact"] for j in ("nut", "bearing"))
+
+
+def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
+    """The modal quantities against 4000 draws of theta from the identification's
+    covariance pushed through the model (another seed, no derivatives). Where the forecast
+    kept the delta method its std is the draws'; where its second-order check switched to
+    draws, the delta std would have been off (the switch was needed) and the interval is
+    the draws' 2.5-97.5 % range."""
+    ident_dir, _, data = folders
+    ident = load_identified(ident_dir)
+    q = {x["name"]: x for x in data["quantities"]}
+
+    def fn(theta):
+        m = bsfs_jax.modes(bsfs_jax.build_system(ident.params_at(theta)))
+        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0],
+                          m.static_stiffness * 1e-6])
+
+    rng = np.random.default_rng(7)
+    draws = rng.multivariate_normal(ident.theta, ident.covariance, size=4000)
+    mc = np.asarray(jax.vmap(fn)(jnp.asarray(draws)))
+    methods = {}
+    for k, name in enumerate(NAMES[:3]):
+        x, sd = q[name], np.std(mc[:, k])
+        methods[name] = x["method"]
+        if x["method"] == "delta":
+            assert x["second_order"] <= 0.1
+            assert x["std"] == pytest.approx(sd, rel=0.06), name
+        else:
+            assert x["method"] == "draws" and x["second_order"] > 0.1
+            assert abs(x["std"] / sd - 1.0) > 0.06, name  # the delta std was off
+            lo, hi = np.percentile(mc[:, k], [2.5, 97.5])
+            assert x["ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo)), name
+    # The natural frequency is linear in theta over its interval; the damping ratio is not
+    # (c_b and c_s are determined only as a combination, their exponentials are not).
+    assert methods["natural_frequency_1_hz"] == "delta"
+    assert methods["damping_ratio_1"] == "draws"
+
+
+def test_forecast_intervals_cover_the_worn_truth(folders):
+    """The truth's own resonance and FRC peak (data/worn.toml, the drive the records were
+    synthesised from) lie inside the 95 % intervals. (Its static stiffness does not: it
+    follows the nut preload, whose identified interval 890-899 N misses the truth's 900 N
+    on this data set, z = 2.6.)"""
+    ident_dir, _, data = folders
+    q = {x["name"]: x for x in data["quantities"]}
+    speed = bsfs_jax.load_params(ident_dir / "identified.toml").get("thermal.speed_rpm")
+    truth = bsfs_jax.load_params(bsfs_jax.__path__[0] + "/../data/worn.toml").replace(
+        "thermal.speed_rpm", speed)
+    m = bsfs_jax.modes(bsfs_jax.build_system(truth))
+    _, branch = locate_frc_peak(truth, FORCE, OrbitSettings())
+    for name, value in (("natural_frequency_1_hz", m.frequencies_hz[0]),
+                        ("damping_ratio_1", m.damping_ratios[0]),
+                        ("peak_frequency_hz", branch.peak.p),
+                        ("peak_amplitude_um", branch.peak.amplitude * 1e6)):
+        lo, hi = q[name]["ci95"]
+        assert lo <= float(value) <= hi, (name, float(value), lo, hi)
+
+
+def _refused(args, capsys, out):
+    assert main(["predict", *args, "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bsfs predict: error:" in err
+    assert not out.exists()
+    return err
+
+
+def test_bad_input_gets_one_line_and_writes_nothing(folders, tmp_path, capsys):
+    ident, _, _ = folders
+    out = tmp_path / "never"
+    err = _refused(["--from", str(tmp_path)], capsys, out)
+    assert "not an identification output folder" in err
+    err = _refused(["--from", str(ident), "--start", "100", "--stop", "500"], capsys, out)
+    assert "holds no resonance" in err
+    err = _refused(["--from", str(ident), "--force", "1e6"], capsys, out)
+    assert "plausible range" in err
+    bad = tmp_path / "unconverged"
+    shutil.copytree(ident, bad)
+    report = json.loads((bad / "report.json").read_text())
+    report["fit"]["converged"] = False
+    (bad / "report.json").write_text(json.dumps(report))
+    err = _refused(["--from", str(bad)], capsys, out)
+    assert "did not converge" in err and "Identify again" in err
