@@ -62,7 +62,7 @@ def _modal(ident: Identified):
 
 def _frc(params, force, start, stop, settings):
     """(hint, branch) of the FRC; a band without an interior peak is refused."""
-    from bsfs_jax.design._orbit import locate_frc_peak
+    from bsfs_jax.design import locate_frc_peak
     from bsfs_jax.solvers import SolverError
 
     try:
@@ -86,7 +86,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     jax = _jax()
     import jax.numpy as jnp
 
-    from bsfs_jax.design._orbit import (
+    from bsfs_jax.design import (
         fold_frequency_value,
         frc_peak_frequency_value,
         frc_peak_value,
@@ -221,8 +221,8 @@ def _liftoff(ident, start, stop):
                    per_joint={j: float(values[i]) for i, j in enumerate(("bearing", "nut"))},
                    note="the force amplitude at which the linearised joint displacement "
                         "reaches the end of its contact window at the joint's resonance; "
-                        "the Hertz joints soften as a side unloads, so the nonlinear value "
-                        "is lower")
+                        "the Hertz joints soften as a side unloads and bend the resonance, "
+                        "and the value on the nonlinear orbits is not computed yet")
     per = [lift(i, f"liftoff_force_{j}_n") for i, j in enumerate(("bearing", "nut"))]
     return q, per
 

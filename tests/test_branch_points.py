@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 import bsfs_jax
-from bsfs_jax.design import with_values
-from bsfs_jax.design._orbit import (
+from bsfs_jax.design import (
     OrbitSettings,
     fold_frequency_value,
     frc_peak_frequency_value,
     locate_frc_peak,
     point_hint,
+    with_values,
 )
 from bsfs_jax.solvers import ImplicitForward
 

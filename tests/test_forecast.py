@@ -11,7 +11,7 @@ import pytest
 
 import bsfs_jax
 from bsfs_jax.cli import main
-from bsfs_jax.design._orbit import OrbitSettings, locate_frc_peak
+from bsfs_jax.design import OrbitSettings, locate_frc_peak
 from identification._forecast import load_identified
 
 jax.config.update("jax_enable_x64", True)

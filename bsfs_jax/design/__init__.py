@@ -33,7 +33,13 @@ from ._optimize import optimization_start as optimization_start
 from ._optimize import optimize as optimize
 from ._optimize import verify_by_simulation as verify_by_simulation
 from ._orbit import OrbitSettings as OrbitSettings
+from ._orbit import PeakHint as PeakHint
+from ._orbit import fold_frequency_value as fold_frequency_value
+from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
+from ._orbit import frc_peak_value as frc_peak_value
+from ._orbit import locate_frc_peak as locate_frc_peak
 from ._orbit import periodic_orbit as periodic_orbit
+from ._orbit import point_hint as point_hint
 from ._sensitivity import DEFAULT_FORCE_N as DEFAULT_FORCE_N
 from ._sensitivity import DEFAULT_FREQUENCY_HZ as DEFAULT_FREQUENCY_HZ
 from ._sensitivity import DESIGN_PARAMETERS as DESIGN_PARAMETERS
