@@ -14,7 +14,8 @@ Each forecast quantity q(theta) is a differentiable function of theta through th
   sqrt(lambda_i) u_i along the covariance's least determined directions (one continuation
   per probe serves every FRC quantity). Where the second-order term's std exceeds
   `SECOND_ORDER_TOL` of the linear one the interval comes from draws instead: of the model
-  itself (vmapped) for a cheap quantity, of the probed quadratic model for a costly one.
+  quadratic model (exact Hessian) for a cheap quantity, of the probed quadratic model for
+  a costly one.
   Where a fold appears or disappears at a probe, that side of its interval is left open.
 
 `dominated_by`: the fitted parameter whose own variance contributes most, g_i^2 C_ii.
@@ -144,14 +145,16 @@ def _quantity(name, unit, v, ci, method, g, ident, scale, extra):
     return Quantity(name, unit, float(v) * scale, ci, method, _dominant(g, ident), extra=extra)
 
 
-def from_hessian(name, unit, value, grad, hess, ident: Identified, draw, *, scale=1.0,
+def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
                  method="delta") -> Quantity:
     """A cheap quantity (modal, linearised lift-off) with its exact gradient and Hessian.
 
     The second-order term's std sqrt(tr((H C)^2) / 2) against the linear std decides: below
     `SECOND_ORDER_TOL` the delta interval; above it the linearisation is doubtful and the
-    interval is the 2.5-97.5 % range of `DRAWS` draws of theta from the covariance pushed
-    through the model (`draw`: a vmapped q(theta)), method "draws"."""
+    interval is the 2.5-97.5 % range of the exact quadratic model q_hat + g.delta +
+    delta.H.delta / 2 over `DRAWS` draws of delta from the covariance (method
+    "quadratic (exact Hessian)"; numpy only: vmapped draws of the model itself, tried
+    first, twice left the process waiting forever inside XLA on the 2-core machine)."""
     g, h, c = np.asarray(grad, float), np.asarray(hess, float), ident.covariance
     sd = float(np.sqrt(max(g @ c @ g, 0.0)))
     hc = h @ c
@@ -162,11 +165,12 @@ def from_hessian(name, unit, value, grad, hess, ident: Identified, draw, *, scal
         return _quantity(name, unit, value, [value - Z95 * sd, value + Z95 * sd], method, g,
                          ident, scale, extra)
     rng = np.random.default_rng(DRAW_SEED)
-    theta = rng.multivariate_normal(ident.theta, c, size=DRAWS, method="eigh")
-    q = np.asarray(draw(theta), float)
+    delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
+    q = float(value) + delta @ g + 0.5 * np.einsum("ni,ij,nj->n", delta, h, delta)
     lo, hi = np.percentile(q, [2.5, 97.5])
     extra.update(draws=DRAWS, draws_std=float(np.std(q)) * scale)
-    return _quantity(name, unit, value, [lo, hi], "draws", g, ident, scale, extra)
+    return _quantity(name, unit, value, [lo, hi], "quadratic (exact Hessian)", g, ident,
+                     scale, extra)
 
 
 def probe_steps(ident: Identified, k: int = 3) -> np.ndarray:

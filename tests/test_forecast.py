@@ -64,8 +64,8 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
     """The modal quantities against 4000 draws of theta from the identification's
     covariance pushed through the model (another seed, no derivatives). Where the forecast
     kept the delta method its std is the draws'; where its second-order check switched to
-    draws, the delta std would have been off (the switch was needed) and the interval is
-    the draws' 2.5-97.5 % range."""
+    the quadratic model, the delta std would have been off (the switch was needed) and the
+    interval is the draws' 2.5-97.5 % range."""
     ident_dir, _, data = folders
     ident = load_identified(ident_dir)
     q = {x["name"]: x for x in data["quantities"]}
@@ -86,14 +86,14 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
             assert x["second_order"] <= 0.1
             assert x["std"] == pytest.approx(sd, rel=0.06), name
         else:
-            assert x["method"] == "draws" and x["second_order"] > 0.1
+            assert x["method"] == "quadratic (exact Hessian)" and x["second_order"] > 0.1
             assert abs(x["std"] / sd - 1.0) > 0.06, name  # the delta std was off
             lo, hi = np.percentile(mc[:, k], [2.5, 97.5])
             assert x["ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo)), name
     # The natural frequency is linear in theta over its interval; the damping ratio is not
     # (c_b and c_s are determined only as a combination, their exponentials are not).
     assert methods["natural_frequency_1_hz"] == "delta"
-    assert methods["damping_ratio_1"] == "draws"
+    assert methods["damping_ratio_1"] == "quadratic (exact Hessian)"
 
 
 def test_forecast_intervals_cover_the_worn_truth(folders):
@@ -114,6 +114,25 @@ def test_forecast_intervals_cover_the_worn_truth(folders):
                         ("peak_amplitude_um", branch.peak.amplitude * 1e6)):
         lo, hi = q[name]["ci95"]
         assert lo <= float(value) <= hi, (name, float(value), lo, hi)
+
+
+def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
+    """The first joint to open is found where its smallest contact deformation on the
+    orbit at the FRC peak crosses zero: below the linearised value (the pair softens), and
+    the orbits 2 % either side of it are closed and open."""
+    from identification._forecast_run import joint_min_deformation
+
+    ident_dir, _, data = folders
+    ident = load_identified(ident_dir)
+    q = {x["name"]: x for x in data["quantities"]}["liftoff_force_n"]
+    assert q["method"] == "delta (nonlinear orbit at the FRC peak)"
+    assert q["joint"] == "bearing" and q["value"] < q["linearised_n"]
+    params = ident.params_at(ident.theta)
+    settings = OrbitSettings(frc_method="hb", frc_tol=1e-4)
+    for factor, sign in ((0.98, 1.0), (1.02, -1.0)):
+        force = factor * q["value"]
+        hint, _ = locate_frc_peak(params, force, settings)
+        assert sign * float(joint_min_deformation(params, force, hint, "bearing")) > 0
 
 
 def _refused(args, capsys, out):

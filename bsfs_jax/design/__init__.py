@@ -38,6 +38,7 @@ from ._orbit import fold_frequency_value as fold_frequency_value
 from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
 from ._orbit import frc_peak_value as frc_peak_value
 from ._orbit import locate_frc_peak as locate_frc_peak
+from ._orbit import peak_orbit_samples as peak_orbit_samples
 from ._orbit import periodic_orbit as periodic_orbit
 from ._orbit import point_hint as point_hint
 from ._sensitivity import DEFAULT_FORCE_N as DEFAULT_FORCE_N

@@ -258,3 +258,25 @@ def frc_peak_frequency_value(params, force_n, hint: PeakHint):
                            jax.jacfwd(rate)(v_star, fam0)[None]])
     v = ImplicitForward().attach(system, family, v_star, jac)
     return v[-1] * hint.p_scale
+
+
+def peak_orbit_samples(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
+    """(ys (K, 6) [SI], system): the orbit at a located branch point (the FRC peak) as the
+    method's uniform samples over one period, differentiable in `params` and `force_n`
+    through the hyperplane system of `fold_frequency_value` (first-order exact for any
+    quantity of the orbit evaluated at the point; exact where that quantity is extremal
+    along the branch)."""
+    family = BSFSFamily(params, hint.frequency_hz, force_n)
+    v_star = jax.lax.stop_gradient(hint.v)
+    t_star = jax.lax.stop_gradient(hint.tangent)
+    ode_adj = adjoint.ode_adjoint()
+    res = _residual(hint, ode_adj)
+
+    def augmented(v, fam):
+        return jnp.concatenate([res(v, fam), jnp.dot(t_star, v - v_star)[None]])
+
+    jac = jax.lax.stop_gradient(hint.jacobian).at[-1].set(t_star)
+    v = adjoint.attach(augmented, family, v_star, jac)
+    args, period = family(v[-1] * hint.p_scale)
+    _, ys = hint.method.samples(vector_field, v[:-1], args, period, 1, hint.scale, ode_adj)
+    return ys, args[0]
