@@ -133,6 +133,9 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
         q = from_probes(name, unit, value, grad, ident, steps,
                         [read[(i, 1.0)][name] for i in range(len(steps))],
                         [read[(i, -1.0)][name] for i in range(len(steps))], scale=scale)
+        fold = {"fold_up_hz": up, "fold_down_hz": down}.get(name)
+        if fold is not None:
+            q.extra["amplitude_um"] = fold.amplitude * 1e6  # where the figure marks it
         if name == "peak_frequency_hz" and shooting:
             q.extra["note"] = ("the joints lose contact at the peak (the curve is continued "
                                "by shooting): the peak frequency's second derivatives are "

@@ -34,8 +34,10 @@ def forecast_figure(curves: dict, nominal, quantities: dict, force_n: float):
         q = quantities[name]
         if q["value"] is None:
             continue
-        amp = np.interp(q["value"], est.p[np.argsort(est.p)],
-                        (est.amplitude * 1e6)[np.argsort(est.p)])
+        amp = q.get("amplitude_um")  # the fold's own amplitude (the curve is folded there)
+        if amp is None:
+            amp = np.interp(q["value"], est.p[np.argsort(est.p)],
+                            (est.amplitude * 1e6)[np.argsort(est.p)])
         ax.errorbar([q["value"]], [amp], xerr=_err(q), fmt=marker, color="tab:orange",
                     capsize=3, label=f"{name.split('_')[1]}-sweep jump (fold), 95 % interval")
     ax.set_xlabel("excitation frequency [Hz]")
