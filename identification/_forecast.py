@@ -138,29 +138,37 @@ def _dominant(g, ident):
     return ident.names[int(np.argmax(contrib))] if np.any(contrib > 0) else None
 
 
+def _std(g, ident) -> float:
+    return float(np.sqrt(max(g @ ident.covariance @ g, 0.0)))
+
+
 def _quantity(name, unit, v, ci, method, g, ident, scale, extra):
-    sd = float(np.sqrt(max(g @ ident.covariance @ g, 0.0)))
-    extra = dict(std=sd * scale, **extra)
+    extra = dict(std=_std(g, ident) * scale, **extra)
     ci = [None if c is None else float(c) * scale for c in ci]
     return Quantity(name, unit, float(v) * scale, ci, method, _dominant(g, ident), extra=extra)
 
 
-def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
-                 method="delta") -> Quantity:
-    """A cheap quantity (modal, linearised lift-off) with its exact gradient and Hessian.
+def delta_interval(name, unit, value, grad, ident: Identified, method, extra=None, *,
+                   scale=1.0) -> Quantity:
+    """The delta method's interval value +- 1.96 sqrt(g^T C g), unchecked at second order
+    (the caller's `method` says so)."""
+    g = np.asarray(grad, float)
+    sd = _std(g, ident)
+    return _quantity(name, unit, value, [value - Z95 * sd, value + Z95 * sd], method, g,
+                     ident, scale, extra or {})
 
-    The second-order term's std sqrt(tr((H C)^2) / 2) against the linear std decides: below
-    `SECOND_ORDER_TOL` the delta interval; above it the linearisation is doubtful and the
-    interval is the 2.5-97.5 % range of the exact quadratic model q_hat + g.delta +
-    delta.H.delta / 2 over `DRAWS` draws of delta from the covariance (method
-    "quadratic (exact Hessian)"; numpy only: vmapped draws of the model itself, tried
-    first, twice left the process waiting forever inside XLA on the 2-core machine)."""
-    g, h, c = np.asarray(grad, float), np.asarray(hess, float), ident.covariance
-    sd = float(np.sqrt(max(g @ c @ g, 0.0)))
+
+def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
+    """The delta interval where the quadratic model's second-order std
+    sqrt(tr((H C)^2) / 2) is at most `SECOND_ORDER_TOL` of the linear std; else the 2.5-97.5 %
+    range of value + g.delta + delta.H.delta / 2 over `DRAWS` draws of delta from the
+    covariance (numpy only), method `quadratic`."""
+    c = ident.covariance
+    sd = _std(g, ident)
     hc = h @ c
     sd2 = float(np.sqrt(max(0.5 * np.trace(hc @ hc), 0.0)))
     ratio = sd2 / sd if sd > 0 else (0.0 if sd2 == 0 else np.inf)
-    extra = dict(second_order=ratio)
+    extra = dict(extra, second_order=ratio)
     if ratio <= SECOND_ORDER_TOL:
         return _quantity(name, unit, value, [value - Z95 * sd, value + Z95 * sd], method, g,
                          ident, scale, extra)
@@ -169,8 +177,17 @@ def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
     q = float(value) + delta @ g + 0.5 * np.einsum("ni,ij,nj->n", delta, h, delta)
     lo, hi = np.percentile(q, [2.5, 97.5])
     extra.update(draws=DRAWS, draws_std=float(np.std(q)) * scale)
-    return _quantity(name, unit, value, [lo, hi], "quadratic (exact Hessian)", g, ident,
-                     scale, extra)
+    return _quantity(name, unit, value, [lo, hi], quadratic, g, ident, scale, extra)
+
+
+def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
+                 method="delta") -> Quantity:
+    """A cheap quantity (modal, linearised lift-off) with its exact gradient and Hessian,
+    checked at second order (`_checked`, method "quadratic (exact Hessian)" where
+    doubtful; draws of the model itself, tried first, twice left the process waiting
+    forever inside XLA on the 2-core machine)."""
+    return _checked(name, unit, value, np.asarray(grad, float), np.asarray(hess, float),
+                    ident, scale, method, "quadratic (exact Hessian)", {})
 
 
 def probe_steps(ident: Identified, k: int = 3) -> np.ndarray:
@@ -187,39 +204,29 @@ def from_probes(name, unit, value, grad, ident: Identified, steps, at_plus, at_m
     theta_hat +- steps[i] (`probe_steps`; `at_plus`/`at_minus`: q there, None where the
     quantity does not exist there, e.g. a fold gone).
 
-    The second differences give the quantity's curvature along each probed direction,
-    d_i = q(+) + q(-) - 2 q_hat; the second-order std sqrt(sum_i (d_i / 1.96^2)^2 / 2)
-    against the linear std decides as in `from_hessian`; where doubtful, the interval is
-    the 2.5-97.5 % range of the quadratic model q_hat + g.delta + sum_i c_i (u_i.delta)^2
-    over draws of delta (method "quadratic (probed)"). Where the quantity vanishes at a
-    probe (a fold appears or disappears inside the interval), the side it moves to there
-    is left open (method "probed: vanishes")."""
-    g, c = np.asarray(grad, float), ident.covariance
-    sd = float(np.sqrt(max(g @ c @ g, 0.0)))
+    The second differences d_i = q(+) + q(-) - 2 q_hat give the quantity's curvature along
+    each probed direction, the Hessian H = sum_i d_i s_i s_i^T / |s_i|^4 restricted to
+    them, and `_checked` decides with it (method "quadratic (probed)" where doubtful).
+    Where the quantity vanishes at a probe (a fold appears or disappears inside the
+    interval), the side it moves to there is left open (method "probed: vanishes")."""
+    g = np.asarray(grad, float)
     v = float(value)
-    lo, hi = v - Z95 * sd, v + Z95 * sd
     gone = [(i, sgn) for i in range(len(steps))
             for sgn, q in ((1.0, at_plus[i]), (-1.0, at_minus[i])) if q is None]
     extra = dict(probes=len(steps))
     if gone:
-        ci = [lo, hi]
+        sd = _std(g, ident)
+        ci = [v - Z95 * sd, v + Z95 * sd]
         for i, sgn in gone:
             ci[1 if sgn * float(g @ steps[i]) >= 0 else 0] = None
         extra["vanishes_at_probes"] = len(gone)
         return _quantity(name, unit, v, ci, "probed: vanishes", g, ident, scale, extra)
     d = np.array([at_plus[i] + at_minus[i] - 2 * v for i in range(len(steps))], float)
     slope = np.array([(at_plus[i] - at_minus[i]) / 2 for i in range(len(steps))], float)
-    lin = np.array([float(g @ s) for s in steps])
-    sd2 = float(np.sqrt(0.5 * np.sum((d / Z95**2) ** 2)))
-    ratio = sd2 / sd if sd > 0 else (0.0 if sd2 == 0 else np.inf)
-    extra.update(second_order=ratio, probe_slope_error=float(
-        np.max(np.abs(slope - lin)) / (Z95 * sd)) if sd > 0 else None)
-    if ratio <= SECOND_ORDER_TOL:
-        return _quantity(name, unit, v, [lo, hi], method, g, ident, scale, extra)
-    rng = np.random.default_rng(DRAW_SEED)
-    delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
+    lin = steps @ g
+    sd = _std(g, ident)
+    extra["probe_slope_error"] = (float(np.max(np.abs(slope - lin)) / (Z95 * sd))
+                                  if sd > 0 else None)
     norm2 = np.sum(steps**2, axis=1)
-    coord = delta @ steps.T / norm2  # (u_i . delta) in units of the probe step
-    q = v + delta @ g + 0.5 * np.sum(d[None, :] * coord**2, axis=1)
-    lo, hi = np.percentile(q, [2.5, 97.5])
-    return _quantity(name, unit, v, [lo, hi], "quadratic (probed)", g, ident, scale, extra)
+    h = np.einsum("i,ij,ik->jk", d / norm2**2, steps, steps)
+    return _checked(name, unit, v, g, h, ident, scale, method, "quadratic (probed)", extra)

@@ -8,11 +8,10 @@ import dataclasses
 import numpy as np
 
 from ._forecast import (
-    Z95,
     ForecastError,
     Identified,
     Quantity,
-    _quantity,
+    delta_interval,
     from_hessian,
     from_probes,
     probe_steps,
@@ -29,17 +28,22 @@ MARGIN_HALF_WIDTHS = 4.0
 PROBES = 3  # least determined directions probed for the FRC quantities' second order
 
 
-def _jax():
+def _value_jac_hess(fn, x):
+    """fn(x), its Jacobian and its Hessian from one forward-over-forward pass."""
     import jax
 
-    jax.config.update("jax_enable_x64", True)
-    return jax
+    def twice(f):  # f's output, also as its aux (jacfwd returns aux undifferentiated)
+        return lambda z: (lambda y: (y, y))(f(z))
+
+    jac_and_value = jax.jacfwd(twice(fn), has_aux=True)
+    hess, (jac, value) = jax.jacfwd(lambda z: (lambda jy: (jy[0], jy))(jac_and_value(z)),
+                                    has_aux=True)(x)
+    return np.asarray(value), np.asarray(jac), np.asarray(hess)
 
 
 def _modal(ident: Identified):
     """natural_frequency_1_hz, damping_ratio_1, static_stiffness_n_per_um: exact gradients
     and Hessians (`from_hessian`)."""
-    jax = _jax()
     import jax.numpy as jnp
 
     from bsfs_jax import build_system, modes
@@ -48,9 +52,7 @@ def _modal(ident: Identified):
         m = modes(build_system(ident.params_at(theta)))
         return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
 
-    theta = jnp.asarray(ident.theta)
-    value, jac = np.asarray(fn(theta)), np.asarray(jax.jacfwd(fn)(theta))
-    hess = np.asarray(jax.hessian(fn)(theta))
+    value, jac, hess = _value_jac_hess(fn, jnp.asarray(ident.theta))
     out = []
     for k, (name, unit, scale) in enumerate((("natural_frequency_1_hz", "Hz", 1.0),
                                              ("damping_ratio_1", "-", 1.0),
@@ -83,7 +85,7 @@ def _folds(branch):
 
 
 def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
-    jax = _jax()
+    import jax
     import jax.numpy as jnp
 
     from bsfs_jax.design import (
@@ -96,10 +98,12 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     theta = jnp.asarray(ident.theta)
     hint, branch = _frc(ident.params_at(ident.theta), force, start, stop, settings)
     shooting = type(branch.method).__name__ == "Shooting"
-    # The path ends are continued by the method that served the estimate (no failed
+    # The probes are continued by the method that served the estimate (no failed
     # harmonic-balance attempt first where it fell back to shooting).
     settings = dataclasses.replace(settings, frc_method="shooting") if shooting else (
         dataclasses.replace(settings, frc_method="hb", frc_harmonics=branch.method.harmonics))
+    # (name, unit, scale, q(theta, hint), its derivative, hint); the value is the located
+    # point's (the implicit functions return it unchanged and attach only derivatives).
     specs = [("peak_frequency_hz", "Hz", 1.0, lambda th, h: frc_peak_frequency_value(
         ident.params_at(th), force, h), jax.jacfwd, hint),
         ("peak_amplitude_um", "um", 1e6, lambda th, h: frc_peak_value(
@@ -128,7 +132,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
                               for name, *_ in specs}
     out = []
     for name, unit, scale, fn, diff, h in specs:
-        value = float(fn(theta, h))
+        value = _read(name, branch)
         grad = np.asarray(diff(fn)(theta, h))
         q = from_probes(name, unit, value, grad, ident, steps,
                         [read[(i, 1.0)][name] for i in range(len(steps))],
@@ -161,9 +165,9 @@ def _read(name, branch):
 
 
 def joint_windows(system, x_eq):
-    """{joint: (margin [m], relative displacement at equilibrium)}: how far each joint's
-    relative displacement may move from equilibrium before a side's contact deformation
-    reaches zero (`physics.contact_deformations`), from the pair's geometry."""
+    """{joint: margin [m]}: how far each joint's relative displacement may move from
+    equilibrium (either way) before a side's contact deformation reaches zero
+    (`physics.contact_deformations`), from the pair's geometry."""
     import jax.numpy as jnp
 
     out = {}
@@ -175,12 +179,14 @@ def joint_windows(system, x_eq):
     return out
 
 
-def _liftoff(ident, start, stop):
-    """liftoff_force_n: the smallest force amplitude at which a joint's linearised relative
-    displacement reaches its contact window anywhere in the band (delta method; the
-    frequency of the largest joint receptance is located without gradient, the envelope
-    theorem makes that exact for the linearised value)."""
-    jax = _jax()
+JOINTS = ("bearing", "nut")
+
+
+def _linear_liftoff(ident, start, stop):
+    """Per joint (`JOINTS` order) the smallest force amplitude at which its linearised
+    relative displacement reaches its contact window anywhere in the band (the frequency
+    of the largest joint receptance is located without gradient, the envelope theorem
+    makes that exact for the linearised value), and the frequencies there."""
     import jax.numpy as jnp
 
     from bsfs_jax import build_system
@@ -190,42 +196,29 @@ def _liftoff(ident, start, stop):
         h = linear_frf(system, f)
         return {"bearing": jnp.abs(h[:, 0]), "nut": jnp.abs(h[:, 2] - h[:, 1])}
 
-    def forces(theta, f_at):
-        system = build_system(ident.params_at(theta))
-        x_eq = linearise(system)[3]
-        win = joint_windows(system, x_eq)
-        return jnp.stack([win[j] / receptances(system, f_at[k:k + 1])[j][0]
-                          for k, j in enumerate(("bearing", "nut"))])
-
     system = build_system(ident.params_at(ident.theta))
     grid = np.linspace(start, stop, GRID)
     rec = {j: np.asarray(v) for j, v in receptances(system, jnp.asarray(grid)).items()}
     f_at = []
-    for j in ("bearing", "nut"):
+    for j in JOINTS:
         k = int(np.argmax(rec[j]))
         fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, GRID - 1)], 401)
         f_at.append(float(fine[np.argmax(np.asarray(receptances(system, jnp.asarray(fine))[j]))]))
-    f_at = jnp.asarray(f_at)
-    theta = jnp.asarray(ident.theta)
-    values = np.asarray(forces(theta, f_at))
-    jac = np.asarray(jax.jacfwd(forces)(theta, f_at))
-    k = int(np.argmin(values))
-    joint = ("bearing", "nut")[k]
-    hess = np.asarray(jax.hessian(forces)(theta, f_at))
 
-    def lift(i, name):
-        return from_hessian(name, "N", values[i], jac[i], hess[i], ident,
-                            method="delta (linearised)")
+    def forces(theta):
+        system = build_system(ident.params_at(theta))
+        win = joint_windows(system, linearise(system)[3])
+        return jnp.stack([win[j] / receptances(system, jnp.asarray(f_at[k:k + 1]))[j][0]
+                          for k, j in enumerate(JOINTS)])
 
-    q = lift(k, "liftoff_force_n")
-    q.extra.update(joint=joint, frequency_hz=float(f_at[k]),
-                   per_joint={j: float(values[i]) for i, j in enumerate(("bearing", "nut"))},
-                   note="the force amplitude at which the linearised joint displacement "
-                        "reaches the end of its contact window at the joint's resonance; "
-                        "the Hertz joints soften as a side unloads and bend the resonance, "
-                        "and the value on the nonlinear orbits is not computed yet")
-    per = [lift(i, f"liftoff_force_{j}_n") for i, j in enumerate(("bearing", "nut"))]
-    return q, per
+    values, jac, hess = _value_jac_hess(forces, jnp.asarray(ident.theta))
+    per = [from_hessian(f"liftoff_force_{j}_n", "N", values[i], jac[i], hess[i], ident,
+                        method="delta (linearised)") for i, j in enumerate(JOINTS)]
+    for q, f in zip(per, f_at):
+        q.extra.update(frequency_hz=f, note="the force amplitude at which the linearised "
+                       "joint displacement reaches the end of its contact window at the "
+                       "joint's resonance")
+    return per
 
 
 # The lift-off search on the nonlinear orbits: harmonic balance at this tolerance (the
@@ -250,20 +243,22 @@ def joint_min_deformation(params, force, hint, joint):
     return jnp.min(jnp.stack(contact_deformations(u, pair)))
 
 
-def _nonlinear_liftoff(ident, lift, per_joint, start, stop):
-    """The first joint to open, on the nonlinear orbits: the force F* at which its
-    smallest contact deformation at the FRC peak reaches zero (secant from the linearised
-    value), and dF*/dtheta = -m_theta / m_F (implicit, reverse mode). On the bundled worn
-    drive the linearised bearing value was 61.5 N (95 % interval 61.3-62.0 N) and the
-    orbits open at 59.9 N: the linearised interval missed it. Where the search fails the
-    linearised value is kept and says so. The other joint stays linearised (it opens after
-    the first, on orbits that have already lost contact)."""
-    jax = _jax()
+def _nonlinear_liftoff(ident, per_joint, start, stop):
+    """`liftoff_force_n`, and `per_joint` with its first joint's entry on the nonlinear
+    orbits: the force F* at which that joint's smallest contact deformation at the FRC
+    peak reaches zero (secant from the linearised value), with dF*/dtheta = -m_theta / m_F
+    (implicit, reverse mode). On the bundled worn drive the linearised bearing value was
+    61.5 N (95 % interval 61.3-62.0 N) and the orbits open at 59.9 N: the linearised
+    interval missed it. Where the search fails the linearised value is kept and says so.
+    The other joint stays linearised (it opens after the first, on orbits that have
+    already lost contact)."""
+    import jax
     import jax.numpy as jnp
 
     from bsfs_jax.design import OrbitSettings
 
-    joint = lift.extra["joint"]
+    first = int(np.argmin([q.value for q in per_joint]))
+    joint, lin = JOINTS[first], per_joint[first]
     settings = OrbitSettings(frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL)
     params = ident.params_at(ident.theta)
 
@@ -271,9 +266,13 @@ def _nonlinear_liftoff(ident, lift, per_joint, start, stop):
         hint, _ = _frc(params, force, start, stop, settings)
         return float(joint_min_deformation(params, force, hint, joint)), hint
 
-    f_lin = lift.value
+    def total(q):
+        return dataclasses.replace(q, name="liftoff_force_n", extra=dict(
+            q.extra, joint=joint, per_joint={j: p.value for j, p in zip(JOINTS, per)}))
+
+    per = list(per_joint)
     try:
-        f0, f1 = 0.9 * f_lin, 0.95 * f_lin
+        f0, f1 = 0.9 * lin.value, 0.95 * lin.value
         (m0, _), (m1, hint) = m(f0), m(f1)
         scale = abs(m0) + abs(m1)
         for _ in range(LIFTOFF_STEPS):
@@ -285,29 +284,23 @@ def _nonlinear_liftoff(ident, lift, per_joint, start, stop):
         else:
             raise ForecastError("no convergence")
     except (ForecastError, ZeroDivisionError):
-        lift.extra["nonlinear"] = "the search on the nonlinear orbits failed: linearised value"
-        return lift, per_joint
-    theta = jnp.asarray(ident.theta)
+        lin.extra["nonlinear"] = "the search on the nonlinear orbits failed: linearised value"
+        return total(lin), per
     g_theta, g_f = jax.grad(lambda th, f: joint_min_deformation(
-        ident.params_at(th), f, hint, joint), argnums=(0, 1))(theta, jnp.asarray(f1))
-    grad = -np.asarray(g_theta) / float(g_f)
-    sd = float(np.sqrt(max(grad @ ident.covariance @ grad, 0.0)))
-    extra = dict(joint=joint, frequency_hz=float(hint.frequency_hz), linearised_n=f_lin,
-                 note="the force at which the first joint to open loses contact on the "
-                      "periodic orbit at the FRC peak (harmonic balance); its interval is "
-                      "the delta method's, not checked at second order")
-    method = "delta (nonlinear orbit at the FRC peak)"
-    ci = [f1 - Z95 * sd, f1 + Z95 * sd]
-    q = _quantity("liftoff_force_n", "N", f1, ci, method, grad, ident, 1.0,
-                  dict(extra, per_joint=lift.extra["per_joint"]))
-    q_joint = _quantity(f"liftoff_force_{joint}_n", "N", f1, ci, method, grad, ident, 1.0,
-                        extra)
-    per = [q_joint if p.name == q_joint.name else p for p in per_joint]
-    for p in per:
-        if p is not q_joint:
-            p.extra["note"] = (f"linearised: the {joint} opens first, at {f1:.1f} N; beyond it "
+        ident.params_at(th), f, hint, joint), argnums=(0, 1))(jnp.asarray(ident.theta),
+                                                              jnp.asarray(f1))
+    per[first] = delta_interval(
+        lin.name, "N", f1, -np.asarray(g_theta) / float(g_f), ident,
+        "delta (nonlinear orbit at the FRC peak)", dict(
+            frequency_hz=float(hint.frequency_hz), linearised_n=lin.value,
+            note="the force at which the first joint to open loses contact on the periodic "
+                 "orbit at the FRC peak (harmonic balance); its interval is the delta "
+                 "method's, not checked at second order"))
+    for i, q in enumerate(per):
+        if i != first:
+            q.extra["note"] = (f"linearised: the {joint} opens first, at {f1:.1f} N; beyond it "
                                "the orbits have lost contact")
-    return q, per
+    return total(per[first]), per
 
 
 def _preloads(ident: Identified, nominal):
@@ -373,7 +366,7 @@ def health(quantities: dict, force: float) -> dict:
 def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
              nominal=None, settings=None) -> dict:
     """The forecast (`prediction.json`'s content less the file fields): quantities, health,
-    the FRC branches (estimate, path ends) and the nominal drive's."""
+    the FRC branches (estimate, probes) and the nominal drive's."""
     import bsfs_jax
     from bsfs_jax.design import OrbitSettings
 
@@ -395,8 +388,8 @@ def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
                             "--start and --stop around it")
     zeta = next(q.value for q in modal if q.name == "damping_ratio_1")
     frc, curves = _frc_quantities(ident, force, start, stop, settings, zeta)
-    lift, per_joint = _liftoff(ident, start, stop)
-    lift, per_joint = _nonlinear_liftoff(ident, lift, per_joint, start, stop)
+    lift, per_joint = _nonlinear_liftoff(ident, _linear_liftoff(ident, start, stop), start,
+                                         stop)
     pre = _preloads(ident, nominal)
     quantities = modal + frc + [lift] + pre
     by_name = {q.name: q for q in quantities + per_joint}

@@ -265,21 +265,16 @@ def parameter_rows(res: IdentificationResult) -> dict:
 
 def covariance_block(res: IdentificationResult) -> dict:
     """The posterior covariance of the fitted coordinates theta, and how theta maps to the
-    values: what `bsfs predict` carries through the model (JSON: inf -> null)."""
+    values: what `bsfs predict` carries through the model (NaN where undetermined; the
+    JSON writer makes it null)."""
     pb, u = res.problem, res.uncertainty
-
-    def finite(a):
-        a = np.asarray(a, float)
-        return [None if not np.isfinite(x) else float(x) for x in a.ravel()]
-
-    p = pb.n_params
-    matrix = np.where(np.isfinite(u.scaled_std)[:, None] & np.isfinite(u.scaled_std)[None, :],
-                      u.covariance, np.nan)
+    finite = np.isfinite(u.scaled_std)
+    matrix = np.where(finite[:, None] & finite[None, :], u.covariance, np.nan)
     return dict(
         names=list(pb.names), keys=list(pb.keys), speed_rpm=list(pb.param_speeds),
         transform=["log" if lg else "offset" for lg in pb.is_log],
-        prior=finite(pb.prior_values), theta=finite(res.fit.theta),
-        matrix=[finite(matrix[i]) for i in range(p)],
+        prior=np.asarray(pb.prior_values, float).tolist(),
+        theta=np.asarray(res.fit.theta, float).tolist(), matrix=matrix.tolist(),
         note="covariance of theta, the fitted coordinates: theta = log(value / prior) for "
              "'log' parameters, value - prior (file units) for 'offset' ones; linearised at "
              "the estimate, with the priors where given; null where the data and priors "

@@ -161,31 +161,34 @@ def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
             f"no FRC peak between {lo:.6g} and {hi:.6g} Hz at {float(force_n):g} N: the nut "
             f"amplitude is largest at an end of the interval ({branch.info['stop_reason']}). "
             "Widen the band (OrbitSettings.frc_band) or check the parameters.")
-    pt = pk.point
-    hint = PeakHint(jnp.asarray(pt.u), jnp.asarray(pt.tangent), jnp.asarray(pt.jacobian),
-                    jnp.asarray(branch.scale), jnp.asarray(branch.info["p_scale"]),
-                    jnp.asarray(pk.p), branch.method)
-    return hint, branch
+    return point_hint(pk.point, branch), branch
+
+
+def _on_hyperplane(params, force_n, hint: PeakHint, adjoint):
+    """(v, family): the branch point's unknowns attached to (params, force_n) through the
+    hyperplane system G(v; theta) = [R(v; theta), t* . (v - v*)] = 0 (module docstring).
+    `hint.jacobian` is G's Newton matrix: the corrector stores [R_v; t*] at the point (the
+    border row's sign, flipped where the branch was oriented, does not change the
+    solution: G's last row does not depend on theta)."""
+    family = BSFSFamily(params, hint.frequency_hz, force_n)
+    v_star = jax.lax.stop_gradient(hint.v)
+    t_star = jax.lax.stop_gradient(hint.tangent)
+    res = _residual(hint, adjoint.ode_adjoint())
+
+    def augmented(v, fam):
+        return jnp.concatenate([res(v, fam), jnp.dot(t_star, v - v_star)[None]])
+
+    return adjoint.attach(augmented, family, v_star, hint.jacobian), family
 
 
 def frc_peak_value(params, force_n, hint: PeakHint):
     """The FRC peak nut amplitude [m] at the located peak, differentiable (reverse mode)
     in `params` and `force_n` by the implicit function theorem (module docstring)."""
-    family = BSFSFamily(params, hint.frequency_hz, force_n)
-    v_star = jax.lax.stop_gradient(hint.v)
-    t_star = jax.lax.stop_gradient(hint.tangent)
-    ode_adj = dfx.RecursiveCheckpointAdjoint()
-
-    def augmented(v, fam):
-        r = family_residual(fam, vector_field, hint.method, hint.scale, hint.p_scale, 1, v,
-                            ode_adj)
-        return jnp.concatenate([r, jnp.dot(t_star, v - v_star)[None]])
-
-    v = ImplicitReverse().attach(augmented, family, v_star, hint.jacobian)
+    adjoint = ImplicitReverse()
+    v, family = _on_hyperplane(params, force_n, hint, adjoint)
     amps = family_amplitudes(family, vector_field, hint.method, hint.scale, hint.p_scale, 1,
-                             v, ode_adj)
+                             v, adjoint.ode_adjoint())
     return amps[2]
-
 
 
 def point_hint(point, branch) -> PeakHint:
@@ -202,38 +205,26 @@ def _residual(hint, ode_adj):
 
 
 def fold_frequency_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
-    """The frequency [Hz] of a located fold of the FRC at `force_n`, differentiable
-    (reverse mode) in `params` and `force_n`.
+    """The frequency [Hz] of a located fold of the FRC at `force_n`, differentiable in
+    `params` and `force_n`.
 
     At a fold the frequency is extremal along the branch (dp/ds = 0), as the amplitude is at
     the peak, so the same argument holds (module docstring): the derivative of the fold's
     frequency is that of p at the branch point that stays on the hyperplane normal to the
-    branch there, G(v; theta) = [R(v; theta), t* . (v - v*)] = 0. This is the Moore-Spence
-    result dp/dtheta = -psi^T R_theta / psi^T R_p without forming psi. The Newton matrix is
-    G's own: R's rows from the located point, the border row t* (the corrector's border was
-    the previous point's tangent). `adjoint`: `ImplicitReverse` (jax.grad) or
-    `ImplicitForward` (jax.jacfwd)."""
-    family = BSFSFamily(params, hint.frequency_hz, force_n)
-    v_star = jax.lax.stop_gradient(hint.v)
-    t_star = jax.lax.stop_gradient(hint.tangent)
-    res = _residual(hint, adjoint.ode_adjoint())
-
-    def augmented(v, fam):
-        return jnp.concatenate([res(v, fam), jnp.dot(t_star, v - v_star)[None]])
-
-    jac = jax.lax.stop_gradient(hint.jacobian).at[-1].set(t_star)
-    v = adjoint.attach(augmented, family, v_star, jac)
-    return v[-1] * hint.p_scale
+    branch there (`_on_hyperplane`). This is the Moore-Spence result
+    dp/dtheta = -psi^T R_theta / psi^T R_p without forming psi. `adjoint`:
+    `ImplicitReverse` (jax.grad) or `ImplicitForward` (jax.jacfwd)."""
+    return _on_hyperplane(params, force_n, hint, adjoint)[0][-1] * hint.p_scale
 
 
 def frc_peak_frequency_value(params, force_n, hint: PeakHint):
-    """The frequency [Hz] of the located FRC peak, differentiable (reverse mode).
+    """The frequency [Hz] of the located FRC peak, differentiable (forward mode).
 
     At the peak the frequency is not extremal along the branch, so the hyperplane argument
     does not hold; the peak is the solution of the square system
     H(v; theta) = [R(v; theta), g(v; theta)] = 0 with g = grad_v A . t(v), the amplitude's
     rate along the branch's tangent t(v) (the null vector of R_v, normalised by t* . t = 1:
-    one bordered solve). H's Jacobian and its reverse pass differentiate through R_v, so
+    one bordered solve). H's Jacobian and its derivative differentiate through R_v, so
     this costs second derivatives of R, taken in forward mode throughout (a shooting
     residual's ODE solve supports one mode only): differentiate with `jax.jacfwd`."""
     family = BSFSFamily(params, hint.frequency_hz, force_n)
@@ -263,20 +254,11 @@ def frc_peak_frequency_value(params, force_n, hint: PeakHint):
 def peak_orbit_samples(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
     """(ys (K, 6) [SI], system): the orbit at a located branch point (the FRC peak) as the
     method's uniform samples over one period, differentiable in `params` and `force_n`
-    through the hyperplane system of `fold_frequency_value` (first-order exact for any
-    quantity of the orbit evaluated at the point; exact where that quantity is extremal
-    along the branch)."""
-    family = BSFSFamily(params, hint.frequency_hz, force_n)
-    v_star = jax.lax.stop_gradient(hint.v)
-    t_star = jax.lax.stop_gradient(hint.tangent)
-    ode_adj = adjoint.ode_adjoint()
-    res = _residual(hint, ode_adj)
-
-    def augmented(v, fam):
-        return jnp.concatenate([res(v, fam), jnp.dot(t_star, v - v_star)[None]])
-
-    jac = jax.lax.stop_gradient(hint.jacobian).at[-1].set(t_star)
-    v = adjoint.attach(augmented, family, v_star, jac)
+    through the hyperplane system (`_on_hyperplane`: first-order exact for any quantity
+    of the orbit evaluated at the point; exact where that quantity is extremal along the
+    branch)."""
+    v, family = _on_hyperplane(params, force_n, hint, adjoint)
     args, period = family(v[-1] * hint.p_scale)
-    _, ys = hint.method.samples(vector_field, v[:-1], args, period, 1, hint.scale, ode_adj)
+    _, ys = hint.method.samples(vector_field, v[:-1], args, period, 1, hint.scale,
+                                adjoint.ode_adjoint())
     return ys, args[0]
