@@ -17,6 +17,8 @@ Public API (the package uses only the public API of `bsfs_jax`):
 - reports: `report_dict`, `parameter_rows`, `summary_text`, `preload_verdicts`,
   `write_identified`;
 - test planning: `plan_test`, `candidate_plans`;
+- forecast (`bsfs predict`): `load_identified`, `identified_from_result`, `Identified`,
+  `forecast`, `Quantity`, `ForecastError`;
 - bundled data: `bundled_records`, `DATA_DIR`.
 """
 
@@ -25,6 +27,12 @@ from ._csv import write_frf_csv as write_frf_csv
 from ._csv import write_record_csv as write_record_csv
 from ._fit import FitResult as FitResult
 from ._fit import fit as fit
+from ._forecast import ForecastError as ForecastError
+from ._forecast import Identified as Identified
+from ._forecast import Quantity as Quantity
+from ._forecast import identified_from_result as identified_from_result
+from ._forecast import load_identified as load_identified
+from ._forecast_run import forecast as forecast
 from ._frf import FrfRecord as FrfRecord
 from ._frf import estimate_frf as estimate_frf
 from ._frf import frf_variance as frf_variance

@@ -27,6 +27,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import equinox as eqx
 import numpy as np
 
 Z95 = 1.959963984540054
@@ -43,7 +44,7 @@ class ForecastError(ValueError):
 class Identified:
     """What a forecast needs from an identification folder."""
 
-    folder: Path
+    folder: Path | None  # None: from a result in memory (`identified_from_result`)
     params: object  # BallScrewParams of identified.toml
     names: tuple
     keys: tuple
@@ -52,9 +53,37 @@ class Identified:
     theta: np.ndarray
     covariance: np.ndarray
     report: dict
+    # (n, p) posterior draws of theta (`bsfs identify --posterior`, posterior.npz), used
+    # in place of Gaussian draws where the linearisation is doubtful; None: none usable,
+    # `draws_note` says why.
+    draws: np.ndarray | None = None
+    draws_note: str | None = None
+
+    @property
+    def coordinates(self) -> Coordinates:
+        """theta -> model, as a pytree that compiled programs take as an argument."""
+        import jax.numpy as jnp
+
+        return Coordinates(self.params, jnp.asarray(self.prior, float),
+                           tuple(bool(x) for x in self.log), tuple(self.keys))
 
     def params_at(self, theta):
         """The model at theta (traceable): identified.toml with the fitted keys set."""
+        return self.coordinates.at(theta)
+
+
+class Coordinates(eqx.Module):
+    """The identified model as a function of the fitted coordinates theta: the parameters
+    of identified.toml with each fitted key set to prior * exp(theta) ('log') or
+    prior + theta ('offset'). Its arrays are traced where a program takes it, its keys
+    static, so one compiled program serves every identification with the same fit set."""
+
+    params: object
+    prior: object
+    log: tuple = eqx.field(static=True)
+    keys: tuple = eqx.field(static=True)
+
+    def at(self, theta):
         import jax.numpy as jnp
 
         p = self.params
@@ -78,20 +107,61 @@ def load_identified(folder, speed_rpm: float | None = None) -> Identified:
                             f"{folder}` first")
     try:
         report = json.loads(report_path.read_text(encoding="utf-8"))
-        fit, cov = report["fit"], report.get("covariance")
+        report["fit"]
     except (ValueError, KeyError, TypeError):
         raise ForecastError(f"{report_path}: not a report.json written by `bsfs identify` "
                             "(unreadable or without its 'fit' section); identify again") from None
+    ident = _identified(folder, bsfs_jax.load_params(toml_path), report, speed_rpm,
+                        report_path)
+    draws, note = _posterior_draws(folder / "posterior.npz", ident)
+    return dataclasses.replace(ident, draws=draws, draws_note=note)
+
+
+def _posterior_draws(path: Path, ident: Identified):
+    """(draws of theta, note): the NUTS draws `bsfs identify --posterior` saved, in the
+    fitted coordinates, where the sampler converged and every fitted parameter is there."""
+    if not path.is_file():
+        return None, "no posterior draws (bsfs identify --posterior N writes them)"
+    post = ident.report.get("posterior") or {}
+    if not post.get("converged"):
+        return None, (f"{path.name}: the sampler did not converge (report.json's "
+                      "'posterior'); its draws are not used")
+    try:
+        with np.load(path) as z:
+            names = [str(n) for n in z["names"]]
+            samples = np.asarray(z["samples"], float).reshape(-1, len(names))
+    except (OSError, ValueError, KeyError):
+        return None, f"{path.name}: unreadable; its draws are not used"
+    if not set(ident.names) <= set(names) or not np.all(np.isfinite(samples)):
+        return None, f"{path.name}: does not match report.json; its draws are not used"
+    values = samples[:, [names.index(n) for n in ident.names]]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        theta = np.where(ident.log, np.log(values / ident.prior), values - ident.prior)
+    if not np.all(np.isfinite(theta)):
+        return None, f"{path.name}: a draw outside the parameters' range; not used"
+    return theta, f"{len(theta)} posterior draws ({path.name})"
+
+
+def identified_from_result(result, speed_rpm: float | None = None) -> Identified:
+    """The same as `load_identified` on the folder `bsfs identify` would write for
+    `result` (an `IdentificationResult`), without the files."""
+    from ._report import report_dict
+
+    return _identified(None, result.params(), report_dict(result), speed_rpm,
+                       "the identification")
+
+
+def _identified(folder, params, report, speed_rpm, where) -> Identified:
+    fit, cov = report["fit"], report.get("covariance")
     if not fit.get("converged"):
         raise ForecastError(
-            f"{folder}: the identification did not converge ({fit.get('convergence', '?')}); "
-            "a forecast from it would not be trustworthy. Identify again with records "
-            "through the resonance (`bsfs plan-test` recommends them), or fit fewer "
-            "parameters (--fit)")
+            f"{folder or where}: the identification did not converge "
+            f"({fit.get('convergence', '?')}); a forecast from it would not be trustworthy. "
+            "Identify again with records through the resonance (`bsfs plan-test` recommends "
+            "them), or fit fewer parameters (--fit)")
     if cov is None:
-        raise ForecastError(f"{report_path}: no 'covariance' section (written by an older "
+        raise ForecastError(f"{where}: no 'covariance' section (written by an older "
                             "bsfs); run `bsfs identify` again to refresh the folder")
-    params = bsfs_jax.load_params(toml_path)
     if speed_rpm is not None:
         params = params.replace("thermal.speed_rpm", float(speed_rpm))
     speed = float(params.get("thermal.speed_rpm"))
@@ -100,7 +170,7 @@ def load_identified(folder, speed_rpm: float | None = None) -> Identified:
     keep = [i for i, s in enumerate(cov["speed_rpm"]) if s is None or abs(s - speed) < 1e-9]
     keep = [i for i in keep if np.isfinite(matrix[i, i])]
     if not keep:
-        raise ForecastError(f"{report_path}: no fitted parameter has a finite variance at "
+        raise ForecastError(f"{where}: no fitted parameter has a finite variance at "
                             f"{speed:g} r/min; nothing to carry into a forecast")
     idx = np.asarray(keep)
     return Identified(folder, params, tuple(cov["names"][i] for i in keep),
@@ -162,7 +232,9 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
     """The delta interval where the quadratic model's second-order std
     sqrt(tr((H C)^2) / 2) is at most `SECOND_ORDER_TOL` of the linear std; else the 2.5-97.5 %
     range of value + g.delta + delta.H.delta / 2 over `DRAWS` draws of delta from the
-    covariance (numpy only), method `quadratic`."""
+    covariance (numpy only), method `quadratic`; where the identification saved posterior
+    draws (`Identified.draws`) delta runs over them instead (method "..., posterior
+    draws")."""
     c = ident.covariance
     sd = _std(g, ident)
     hc = h @ c
@@ -172,11 +244,15 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
     if ratio <= SECOND_ORDER_TOL:
         return _quantity(name, unit, value, [value - Z95 * sd, value + Z95 * sd], method, g,
                          ident, scale, extra)
-    rng = np.random.default_rng(DRAW_SEED)
-    delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
+    if ident.draws is not None:
+        delta = ident.draws - ident.theta
+        quadratic += ", posterior draws"
+    else:
+        rng = np.random.default_rng(DRAW_SEED)
+        delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
     q = float(value) + delta @ g + 0.5 * np.einsum("ni,ij,nj->n", delta, h, delta)
     lo, hi = np.percentile(q, [2.5, 97.5])
-    extra.update(draws=DRAWS, draws_std=float(np.std(q)) * scale)
+    extra.update(draws=len(delta), draws_std=float(np.std(q)) * scale)
     return _quantity(name, unit, value, [lo, hi], quadratic, g, ident, scale, extra)
 
 
@@ -230,3 +306,29 @@ def from_probes(name, unit, value, grad, ident: Identified, steps, at_plus, at_m
     norm2 = np.sum(steps**2, axis=1)
     h = np.einsum("i,ij,ik->jk", d / norm2**2, steps, steps)
     return _checked(name, unit, v, g, h, ident, scale, method, "quadratic (probed)", extra)
+
+
+def value_jac_hess(fn, x):
+    """fn(x), its Jacobian and its Hessian from one forward-over-forward pass (traced)."""
+    import jax
+
+    def twice(f):  # f's output, also as its aux (jacfwd returns aux undifferentiated)
+        return lambda z: (lambda y: (y, y))(f(z))
+
+    jac_and_value = jax.jacfwd(twice(fn), has_aux=True)
+    hess, (jac, value) = jax.jacfwd(lambda z: (lambda jy: (jy[0], jy))(jac_and_value(z)),
+                                    has_aux=True)(x)
+    return value, jac, hess
+
+
+def locate_peak(params, force, start, stop, settings):
+    """(hint, branch) of the FRC; a band without an interior peak is refused."""
+    from bsfs_jax.design import locate_frc_peak
+    from bsfs_jax.solvers import SolverError
+
+    try:
+        return locate_frc_peak(params, force, settings, start_hz=start, stop_hz=stop)
+    except SolverError as exc:
+        raise ForecastError(f"no resonance peak between {start:g} and {stop:g} Hz at "
+                            f"{force:g} N ({str(exc).split(':')[0]}); choose a band around the "
+                            "first natural frequency (--start/--stop)") from None

@@ -12,7 +12,7 @@ import pytest
 import bsfs_jax
 from bsfs_jax.cli import main
 from bsfs_jax.design import OrbitSettings, locate_frc_peak
-from identification._forecast import load_identified
+from identification import load_identified
 
 jax.config.update("jax_enable_x64", True)
 
@@ -96,6 +96,49 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
     assert methods["damping_ratio_1"] == "quadratic (exact Hessian)"
 
 
+def test_posterior_draws_replace_the_gaussian_ones_where_the_delta_is_doubtful(folders,
+                                                                               tmp_path):
+    """With posterior draws in the folder (posterior.npz, as `bsfs identify --posterior`
+    writes them; here heavy-tailed draws around the estimate, multivariate Student t with
+    4 degrees of freedom and the identification's covariance as scale) a quantity whose second-order check fails takes its interval from them: it
+    matches those draws pushed through the model itself, and is wider than the Gaussian
+    one. Draws of an unconverged sampler are not used, and the note says so."""
+    from identification._forecast_run import _modal
+
+    ident_dir, _, data = folders
+    gaussian = {x["name"]: x for x in data["quantities"]}["damping_ratio_1"]["ci95"]
+    folder = tmp_path / "with-posterior"
+    shutil.copytree(ident_dir, folder)
+    ident = load_identified(folder)
+    assert ident.draws is None and "no posterior draws" in ident.draws_note
+    rng = np.random.default_rng(3)
+    n, dof = 4000, 4.0
+    z = rng.multivariate_normal(np.zeros(len(ident.theta)), ident.covariance, size=n)
+    theta = ident.theta + z * np.sqrt(dof / rng.chisquare(dof, size=(n, 1)))
+    values = np.where(ident.log, ident.prior * np.exp(theta), ident.prior + theta)
+    np.savez(folder / "posterior.npz", names=np.asarray(ident.names),
+             samples=values.reshape(4, n // 4, -1))
+    report = json.loads((folder / "report.json").read_text())
+    report["posterior"] = dict(converged=False)
+    (folder / "report.json").write_text(json.dumps(report))
+    assert load_identified(folder).draws is None  # not converged: not used
+    report["posterior"] = dict(converged=True)
+    (folder / "report.json").write_text(json.dumps(report))
+    ident = load_identified(folder)
+    assert ident.draws.shape == (n, len(ident.theta))
+    np.testing.assert_allclose(ident.draws, theta, rtol=1e-9, atol=1e-12)
+    zeta = {q.name: q for q in _modal(ident)[0]}["damping_ratio_1"]
+    assert zeta.method == "quadratic (exact Hessian), posterior draws"
+
+    def damping(th):
+        return bsfs_jax.modes(bsfs_jax.build_system(ident.params_at(th))).damping_ratios[0]
+
+    direct = np.asarray(jax.vmap(damping)(jnp.asarray(theta)))
+    lo, hi = np.percentile(direct, [2.5, 97.5])
+    assert zeta.ci95 == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
+    assert hi - lo > 1.1 * (gaussian[1] - gaussian[0])
+
+
 def test_forecast_intervals_cover_the_worn_truth(folders):
     """The truth's own resonance and FRC peak (data/worn.toml, the drive the records were
     synthesised from) lie inside the 95 % intervals. (Its static stiffness does not: it
@@ -120,7 +163,7 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     """The first joint to open is found where its smallest contact deformation on the
     orbit at the FRC peak crosses zero: below the linearised value (the pair softens), and
     the orbits 2 % either side of it are closed and open."""
-    from identification._forecast_run import joint_min_deformation
+    from identification._liftoff import joint_min_deformation
 
     ident_dir, _, data = folders
     ident = load_identified(ident_dir)

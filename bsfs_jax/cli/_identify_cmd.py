@@ -128,12 +128,20 @@ def run_identify(args) -> int:
     except (idn.RecordError, ValueError) as exc:
         raise CLIError(str(exc)) from None
     report = idn.report_dict(res)
-    if args.posterior:
-        report["posterior"] = _posterior(res, args)
+    post = _posterior(res, args) if args.posterior else None
+    if post is not None:
+        report["posterior"] = post.as_dict()
         report["summary"] += "\n" + idn.posterior_text(report["posterior"], report)
     paths = idn.write_identified(res, out)
     write_json(out / "report.json", report)
     written = [*paths, out / "report.json"]
+    if post is not None:  # the draws themselves, for `bsfs predict`
+        import numpy as np
+
+        from ..files import save_npz_atomic
+
+        written.append(save_npz_atomic(out / "posterior.npz", names=np.asarray(post.names),
+                                       samples=post.samples))
     sines = [(d, m, c) for d, m, c in zip(res.data, res.model_labels(), res.model_harmonics())
              if m != "frf"]
     if sines:
@@ -166,15 +174,14 @@ def run_identify(args) -> int:
     return 0 if res.fit.converged else 4
 
 
-def _posterior(res, args) -> dict:
+def _posterior(res, args):
     import identification as idn
 
     try:
-        post = idn.posterior(res.fit, res.uncertainty, samples=args.posterior,
+        return idn.posterior(res.fit, res.uncertainty, samples=args.posterior,
                              warmup=args.posterior, chains=4, seed=args.seed)
     except ValueError as exc:
         raise CLIError(f"--posterior: {exc}") from None
-    return post.as_dict()
 
 
 def _read_report(other_dir):

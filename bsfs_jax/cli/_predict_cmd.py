@@ -10,7 +10,9 @@ def register(sub) -> None:
         description="Read a `bsfs identify --out` folder and carry the fit's covariance "
         "through the model: first natural frequency, damping ratio and static stiffness; "
         "the FRC's peak and folds at --force (continued branch, exact implicit gradients, "
-        "delta method checked at second order); the lift-off force (linearised joints); "
+        "delta method checked at second order; where it is doubtful, the posterior draws "
+        "of `bsfs identify --posterior` when the folder has them); the lift-off force "
+        "(on the nonlinear orbit at the FRC peak); "
         "preloads retained against the nominal drive; a health verdict per joint. Writes "
         "prediction.json and prediction.png.")
     p.add_argument("--from", dest="source", required=True, metavar="DIR",
@@ -31,8 +33,7 @@ def register(sub) -> None:
 
 def run_predict(args) -> int:
     import bsfs_jax
-    from identification._forecast import ForecastError, load_identified
-    from identification._forecast_run import forecast
+    from identification import ForecastError, forecast, load_identified
 
     from ..plotting import forecast_figure
 
@@ -52,6 +53,7 @@ def run_predict(args) -> int:
         fitted=list(ident.names), quantities=quantities,
         per_joint_liftoff=[q.as_dict() for q in fc["per_joint_liftoff"]],
         health=fc["health"],
+        posterior_draws=ident.draws_note,
         note="95 % intervals from the identification's covariance: delta method through "
              "exact implicit gradients, checked at the ends of each quantity's most "
              "sensitive path ('path ends' where the second-order term exceeds 10 % of the "

@@ -1,0 +1,187 @@
+"""The forecast's lift-off force (`liftoff_force_n`): per joint on the linearised model,
+then for the first joint to open on the nonlinear orbits at the FRC peak."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+import bsfs_jax
+
+from ._forecast import ForecastError, delta_interval, from_hessian, locate_peak, value_jac_hess
+
+GRID = 2001  # frequencies over the band where each joint's receptance peak is sought
+JOINTS = ("bearing", "nut")
+
+
+@bsfs_jax.cached_jit
+def _receptance_program(coords, theta, freq):
+    """(bearing, nut) linearised joint receptances |u / F| [m/N] at `freq`."""
+    import jax.numpy as jnp
+
+    from bsfs_jax.machine import linear_frf
+
+    h = linear_frf(bsfs_jax.build_system(coords.at(theta)), freq)
+    return jnp.abs(h[:, 0]), jnp.abs(h[:, 2] - h[:, 1])
+
+
+@bsfs_jax.cached_jit
+def _linear_liftoff_program(coords, theta, f_at):
+    """(value, Jacobian, Hessian) of the per-joint (`JOINTS`) linearised lift-off forces,
+    each at its own frequency `f_at[k]`."""
+    import jax.numpy as jnp
+
+    from bsfs_jax.machine import linear_frf, linearise
+
+    def fn(th):
+        system = bsfs_jax.build_system(coords.at(th))
+        win = joint_windows(system, linearise(system)[3])
+        h = linear_frf(system, f_at)
+        rec = {"bearing": jnp.abs(h[0, 0]), "nut": jnp.abs(h[1, 2] - h[1, 1])}
+        return jnp.stack([win[j] / rec[j] for j in JOINTS])
+
+    return value_jac_hess(fn, theta)
+
+
+@bsfs_jax.cached_jit
+def _min_deformation_program(coords, theta, force, hint, joint):
+    """`joint_min_deformation` at theta and force, with its gradients in both."""
+    import jax
+
+    return jax.value_and_grad(lambda th, f: joint_min_deformation(
+        coords.at(th), f, hint, joint), argnums=(0, 1))(theta, force)
+
+
+def joint_windows(system, x_eq):
+    """{joint: margin [m]}: how far each joint's relative displacement may move from
+    equilibrium (either way) before a side's contact deformation reaches zero
+    (`physics.contact_deformations`), from the pair's geometry."""
+    import jax.numpy as jnp
+
+    out = {}
+    for joint, pair, u_eq in (("bearing", system.bearing, x_eq[0]),
+                              ("nut", system.nut, x_eq[2] - x_eq[1])):
+        root = jnp.sqrt(pair.reach**2 - pair.radial_sq)
+        u_hi = pair.cos_helix * (pair.axial - root)
+        out[joint] = jnp.minimum(u_hi - u_eq, u_eq + u_hi)
+    return out
+
+
+JOINTS = ("bearing", "nut")
+
+
+def linear_liftoff(ident, start, stop):
+    """Per joint (`JOINTS` order) the smallest force amplitude at which its linearised
+    relative displacement reaches its contact window anywhere in the band (the frequency
+    of the largest joint receptance is located without gradient, the envelope theorem
+    makes that exact for the linearised value), and the frequencies there."""
+    import jax.numpy as jnp
+
+    coords, theta = ident.coordinates, jnp.asarray(ident.theta, float)
+
+    def receptances(f):
+        return dict(zip(JOINTS, (np.asarray(r) for r in _receptance_program(
+            coords, theta, jnp.asarray(f, float)))))
+
+    grid = np.linspace(start, stop, GRID)
+    rec = receptances(grid)
+    f_at = []
+    for j in JOINTS:
+        k = int(np.argmax(rec[j]))
+        fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, GRID - 1)], 401)
+        f_at.append(float(fine[np.argmax(receptances(fine)[j])]))
+    values, jac, hess = (np.asarray(a) for a in _linear_liftoff_program(
+        coords, theta, jnp.asarray(f_at, float)))
+    per = [from_hessian(f"liftoff_force_{j}_n", "N", values[i], jac[i], hess[i], ident,
+                        method="delta (linearised)") for i, j in enumerate(JOINTS)]
+    for q, f in zip(per, f_at):
+        q.extra.update(frequency_hz=f, note="the force amplitude at which the linearised "
+                       "joint displacement reaches the end of its contact window at the "
+                       "joint's resonance")
+    return per
+
+
+# The lift-off search on the nonlinear orbits: harmonic balance at this tolerance (the
+# contact law's kink appears just past lift-off), secant steps, stop at this fraction of
+# the first two deformations.
+LIFTOFF_SETTINGS_TOL = 1e-4
+LIFTOFF_STEPS = 8
+LIFTOFF_RTOL = 1e-4
+
+
+def joint_min_deformation(params, force, hint, joint):
+    """Smallest contact deformation [m] of a joint's two sides over the orbit at a located
+    FRC peak (differentiable: `bsfs_jax.design.peak_orbit_samples`); <= 0: a side opens."""
+    import jax.numpy as jnp
+
+    from bsfs_jax.design import peak_orbit_samples
+    from bsfs_jax.physics import contact_deformations
+
+    ys, system = peak_orbit_samples(params, force, hint)
+    u = ys[:, 0] if joint == "bearing" else ys[:, 2] - ys[:, 1]
+    pair = system.bearing if joint == "bearing" else system.nut
+    return jnp.min(jnp.stack(contact_deformations(u, pair)))
+
+
+def nonlinear_liftoff(ident, per_joint, start, stop):
+    """`liftoff_force_n`, and `per_joint` with its first joint's entry on the nonlinear
+    orbits: the force F* at which that joint's smallest contact deformation at the FRC
+    peak reaches zero (secant from the linearised value), with dF*/dtheta = -m_theta / m_F
+    (implicit, reverse mode). On the bundled worn drive the linearised bearing value was
+    61.5 N (95 % interval 61.3-62.0 N) and the orbits open at 59.9 N: the linearised
+    interval missed it. Where the search fails the linearised value is kept and says so.
+    The other joint stays linearised (it opens after the first, on orbits that have
+    already lost contact)."""
+    import jax.numpy as jnp
+
+    from bsfs_jax.design import OrbitSettings
+
+    first = int(np.argmin([q.value for q in per_joint]))
+    joint, lin = JOINTS[first], per_joint[first]
+    settings = OrbitSettings(frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL)
+    params = ident.params_at(ident.theta)
+    coords, theta = ident.coordinates, jnp.asarray(ident.theta, float)
+
+    def m_and_grads(force, hint):
+        (value, (g_theta, g_f)) = _min_deformation_program(
+            coords, theta, jnp.asarray(force, float), hint, joint)
+        return float(value), np.asarray(g_theta), float(g_f)
+
+    def m(force):
+        hint, _ = locate_peak(params, force, start, stop, settings)
+        return m_and_grads(force, hint)[0], hint
+
+    def total(q):
+        return dataclasses.replace(q, name="liftoff_force_n", extra=dict(
+            q.extra, joint=joint, per_joint={j: p.value for j, p in zip(JOINTS, per)}))
+
+    per = list(per_joint)
+    try:
+        f0, f1 = 0.9 * lin.value, 0.95 * lin.value
+        (m0, _), (m1, hint) = m(f0), m(f1)
+        scale = abs(m0) + abs(m1)
+        for _ in range(LIFTOFF_STEPS):
+            f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
+            m2, hint2 = m(f2)
+            f0, m0, f1, m1, hint = f1, m1, f2, m2, hint2
+            if abs(m1) < LIFTOFF_RTOL * scale:
+                break
+        else:
+            raise ForecastError("no convergence")
+    except (ForecastError, ZeroDivisionError):
+        lin.extra["nonlinear"] = "the search on the nonlinear orbits failed: linearised value"
+        return total(lin), per
+    _, g_theta, g_f = m_and_grads(f1, hint)
+    per[first] = delta_interval(
+        lin.name, "N", f1, -g_theta / g_f, ident,
+        "delta (nonlinear orbit at the FRC peak)", dict(
+            frequency_hz=float(hint.frequency_hz), linearised_n=lin.value,
+            note="the force at which the first joint to open loses contact on the periodic "
+                 "orbit at the FRC peak (harmonic balance); its interval is the delta "
+                 "method's, not checked at second order"))
+    for i, q in enumerate(per):
+        if i != first:
+            q.extra["note"] = (f"linearised: the {joint} opens first, at {f1:.1f} N; beyond it "
+                               "the orbits have lost contact")
+    return total(per[first]), per

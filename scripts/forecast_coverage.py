@@ -1,0 +1,247 @@
+"""Coverage study of the forecast's 95 % intervals (issue 20, item 3).
+
+For N seeded replicates of the bundled preload-loss test (the records of
+`scripts/coverage_study.py`: synthesised afresh from the truth, data/worn.toml, with new
+seeds), each replicate is identified as the README's example does it (`identification.
+identify`, `PRELOAD_FIT`, the default preset as prior), its output folder is written as
+`bsfs identify --out` writes it (identified.toml, report.json), and `bsfs predict`'s
+forecast is run on that folder at the working force (default 100 N, where the FRC has
+folds). Each quantity's interval is compared with the truth's own value: the same forecast
+run on the truth (worn.toml) itself, the preloads read from it.
+
+    python scripts/forecast_coverage.py                 # 100 replicates (~1 h, 2 cores)
+    python scripts/forecast_coverage.py --quick         # 4 replicates, a check
+    python scripts/forecast_coverage.py --workers 2     # two processes, half each
+    python scripts/forecast_coverage.py --report-only   # tables from the files
+
+Every replicate is one JSON line in out/forecast-coverage/<force>N.jsonl (per worker
+.w<i>.jsonl; flushed and fsynced); a rerun skips the replicates already there, so an
+interrupted study resumes. The summary (per quantity: coverage with its Clopper-Pearson
+interval, mean and std of z = (estimate - truth) / stated std, mean relative error, the
+methods used) is printed and written to out/forecast-coverage/<force>N_summary.{json,md}.
+Results: docs/COVERAGE.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+from bsfs_jax.cli._common import setup_jax, write_json  # noqa: E402
+
+setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
+
+import numpy as np  # noqa: E402
+from coverage_study import (  # noqa: E402
+    append_line,
+    binom_ci,
+    read_done,
+    record_seeds,
+    synth_records,
+    truth_params,
+)
+
+import bsfs_jax  # noqa: E402
+import identification as idn  # noqa: E402
+
+OUT = ROOT / "out" / "forecast-coverage"
+PRELOADS = {"nut_preload_n": "nut.preload_n", "bearing_preload_n": "bearing.preload_n"}
+
+
+def identified_folder(records, prior, folder: Path):
+    """`bsfs identify --fit PRELOAD_FIT --out folder` on the records (its two files)."""
+    res = idn.identify(records, prior, idn.PRELOAD_FIT)
+    folder.mkdir(parents=True, exist_ok=True)
+    idn.write_identified(res, folder)
+    write_json(folder / "report.json", idn.report_dict(res))
+    return res
+
+
+def truth_values(ident, truth, force: float) -> dict:
+    """The truth's own value of every quantity: the forecast on the truth itself (its
+    fitted coordinates at the truth's values; the intervals there are not used), the
+    preloads read from worn.toml."""
+    theta = []
+    for key, lg, prior in zip(ident.keys, ident.log, ident.prior):
+        v = float(np.asarray(truth.get(key)))
+        theta.append(np.log(v / prior) if lg else v - prior)
+    t_ident = dataclasses.replace(ident, params=truth, theta=np.asarray(theta))
+    for key in ident.keys:  # the truth model is the truth
+        assert np.isclose(float(np.asarray(t_ident.params_at(t_ident.theta).get(key))),
+                          float(np.asarray(truth.get(key))), rtol=1e-12)
+    fc = idn.forecast(t_ident, force, nominal_curve=False)
+    out = {q.name: q.value for q in fc["quantities"]}
+    out.update({q.name: q.value for q in fc["per_joint_liftoff"]})
+    out.update({name: float(np.asarray(truth.get(key))) for name, key in PRELOADS.items()})
+    return out
+
+
+def row_of(replicate, fc, truth: dict, seconds: dict, res) -> dict:
+    quantities = {}
+    for q in list(fc["quantities"]) + list(fc["per_joint_liftoff"]):
+        t = truth.get(q.name)
+        lo, hi = (None, None) if q.ci95 is None else q.ci95
+        covers = None
+        if q.value is not None and t is not None and q.ci95 is not None:
+            covers = bool((lo is None or lo <= t) and (hi is None or t <= hi))
+        std = q.extra.get("std")
+        if q.name in PRELOADS and q.ci95 is not None:  # the identification's interval
+            std = (hi - lo) / (2 * 1.959963984540054)
+        quantities[q.name] = dict(
+            value=q.value, truth=t, ci95=q.ci95, method=q.method, covers=covers,
+            std=std, z=None if covers is None or not std else (q.value - t) / std,
+            dominated_by=q.dominated_by)
+    return dict(replicate=replicate, seeds=record_seeds(replicate),
+                converged=bool(res.fit.converged), quantities=quantities,
+                health={j: h["line"] for j, h in fc["health"].items()}, seconds=seconds)
+
+
+# ----------------------------------------------------------------------------- summary
+
+
+def summarize(rows: list[dict]) -> dict:
+    names = list(rows[0]["quantities"])
+    out = dict(replicates=len(rows), quantities={})
+    for n in names:
+        qs = [r["quantities"].get(n) for r in rows]
+        judged = [q for q in qs if q is not None and q["covers"] is not None]
+        k = sum(q["covers"] for q in judged)
+        # A quantity the truth has but a replicate did not find (e.g. no fold) is a miss.
+        missing = sum(1 for q in qs if q is None or (q["truth"] is not None and q["value"] is None))
+        n_all = len(judged) + missing
+        z = np.asarray([q["z"] for q in judged if q["z"] is not None], float)
+        rel = np.asarray([q["value"] / q["truth"] - 1 for q in judged], float)
+        methods = {}
+        for q in judged:
+            methods[q["method"]] = methods.get(q["method"], 0) + 1
+        if n_all == 0:
+            out["quantities"][n] = dict(judged=0, methods=methods)
+            continue
+        out["quantities"][n] = dict(
+            judged=n_all, covered=int(k), coverage=k / n_all,
+            coverage_ci95=binom_ci(int(k), n_all), missing=missing,
+            z_mean=float(z.mean()) if z.size else None,
+            z_mean_se=float(z.std(ddof=1) / np.sqrt(z.size)) if z.size > 1 else None,
+            z_std=float(z.std(ddof=1)) if z.size > 1 else None,
+            rel_error_mean=float(rel.mean()) if rel.size else None,
+            rel_error_std=float(rel.std(ddof=1)) if rel.size > 1 else None,
+            truth=next((q["truth"] for q in qs if q is not None), None), methods=methods)
+    out["converged"] = float(np.mean([r["converged"] for r in rows]))
+    out["seconds_median"] = {k: float(np.median([r["seconds"][k] for r in rows]))
+                             for k in rows[0]["seconds"]}
+    return out
+
+
+def markdown(s: dict, force: float) -> str:
+    lines = [f"Forecast at {force:g} N; {s['replicates']} replicates of the preload-loss "
+             "test (worn.toml), each identified (PRELOAD_FIT) and predicted.", "",
+             "| quantity | truth | coverage | 95 % CI of coverage | mean z | std z | "
+             "mean rel. error | methods |", "|---|---|---|---|---|---|---|---|"]
+    for n, q in s["quantities"].items():
+        if not q.get("judged"):
+            continue
+        lo, hi = q["coverage_ci95"]
+        zm = "-" if q["z_mean"] is None else f"{q['z_mean']:+.2f} +- {q['z_mean_se']:.2f}"
+        zs = "-" if q["z_std"] is None else f"{q['z_std']:.2f}"
+        rel = "-" if q["rel_error_mean"] is None else f"{100 * q['rel_error_mean']:+.3f} %"
+        miss = f", {q['missing']} not found" if q["missing"] else ""
+        meth = "; ".join(f"{k} {v}" for k, v in q["methods"].items())
+        lines.append(f"| {n} | {q['truth']:.6g} | {100 * q['coverage']:.1f} % "
+                     f"({q['covered']}/{q['judged']}{miss}) | {100 * lo:.1f}-{100 * hi:.1f} % "
+                     f"| {zm} | {zs} | {rel} | {meth} |")
+    sec = ", ".join(f"{k} {v:.1f} s" for k, v in s["seconds_median"].items())
+    lines += ["", f"Converged fits: {100 * s['converged']:.1f} %; median time per replicate: "
+              f"{sec}."]
+    return "\n".join(lines) + "\n"
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def files(force: float) -> list[Path]:
+    return sorted(OUT.glob(f"{force:g}N*.jsonl"))
+
+
+def run(todo: list[int], path: Path, force: float) -> None:
+    truth, prior = truth_params(), bsfs_jax.preset()
+    truth_file = OUT / f"{force:g}N_truth.json"
+    t_start = time.perf_counter()
+    for j, k in enumerate(todo):
+        t0 = time.perf_counter()
+        recs = synth_records(truth, k, {})
+        t1 = time.perf_counter()
+        with tempfile.TemporaryDirectory(prefix=f"bsfs-fc{k}-") as tmp:
+            res = identified_folder(recs, prior, Path(tmp))
+            t2 = time.perf_counter()
+            ident = idn.load_identified(tmp)
+            if not truth_file.exists():  # once per study (the first worker to get here)
+                write_json(truth_file, truth_values(ident, truth, force))
+            t_truth = time.perf_counter()
+            fc = idn.forecast(ident, force, nominal_curve=False)
+        t3 = time.perf_counter()
+        tv = json.loads(truth_file.read_text())
+        row = row_of(k, fc, tv, dict(synth=t1 - t0, identify=t2 - t1,
+                                     forecast=t3 - t_truth), res)
+        append_line(path, row)
+        el = time.perf_counter() - t_start
+        cov = [q["covers"] for q in row["quantities"].values() if q["covers"] is not None]
+        print(f"[{j + 1}/{len(todo)}] replicate {k}: covered {sum(cov)}/{len(cov)}  "
+              f"identify {t2 - t1:.1f} s forecast {t3 - t_truth:.1f} s  (elapsed {el:.0f} s, "
+              f"ETA {el / (j + 1) * (len(todo) - j - 1):.0f} s)", flush=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--replicates", type=int, default=100)
+    ap.add_argument("--quick", action="store_true", help="4 replicates (a check)")
+    ap.add_argument("--force", type=float, default=100.0, help="working force [N]")
+    ap.add_argument("--workers", type=int, default=1, help="processes, each its own share")
+    ap.add_argument("--shard", default=None, help=argparse.SUPPRESS)  # "i/n" (a worker)
+    ap.add_argument("--report-only", action="store_true", help="summarise the files")
+    args = ap.parse_args(argv)
+    n = 4 if args.quick else args.replicates
+    OUT.mkdir(parents=True, exist_ok=True)
+    rows = [r for f in files(args.force) for r in read_done(f)]
+    done = {r["replicate"] for r in rows}
+    todo = [k for k in range(n) if k not in done]
+    if args.shard:
+        i, m = (int(x) for x in args.shard.split("/"))
+        run(todo[i::m], OUT / f"{args.force:g}N.w{i}.jsonl", args.force)
+        return 0
+    print(f"{len(done)} replicate(s) done, {len(todo)} to run at {args.force:g} N", flush=True)
+    if todo and not args.report_only:
+        if args.workers > 1:
+            # The truth's values first, so the workers do not both compute them.
+            run(todo[:1], OUT / f"{args.force:g}N.jsonl", args.force)
+            procs = [subprocess.Popen([sys.executable, __file__, "--replicates", str(n),
+                                       "--force", str(args.force), "--shard",
+                                       f"{i}/{args.workers}"]) for i in range(args.workers)]
+            if any(p.wait() for p in procs):
+                print("a worker failed; rerun to resume", file=sys.stderr)
+                return 1
+        else:
+            run(todo, OUT / f"{args.force:g}N.jsonl", args.force)
+    rows = sorted({r["replicate"]: r for f in files(args.force) for r in read_done(f)
+                   if r["replicate"] < n}.values(), key=lambda r: r["replicate"])
+    if not rows:
+        return 0
+    s = summarize(rows)
+    md = markdown(s, args.force)
+    print(md)
+    Path(OUT / f"{args.force:g}N_summary.json").write_text(json.dumps(s, indent=1) + "\n")
+    Path(OUT / f"{args.force:g}N_summary.md").write_text(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
