@@ -11,7 +11,7 @@ run on the truth (worn.toml) itself, the preloads read from it.
 
     python scripts/forecast_coverage.py                 # 100 replicates (~1 h, 2 cores)
     python scripts/forecast_coverage.py --quick         # 4 replicates, a check
-    python scripts/forecast_coverage.py --workers 2     # two processes, half each
+    python scripts/forecast_coverage.py --workers 2     # two worker processes at a time
     python scripts/forecast_coverage.py --report-only   # tables from the files
 
 Every replicate is one JSON line in out/forecast-coverage/<force>N.jsonl (per worker
@@ -55,6 +55,7 @@ import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
 
 OUT = ROOT / "out" / "forecast-coverage"
+PER_PROCESS = 10  # replicates per worker process
 PRELOADS = {"nut_preload_n": "nut.preload_n", "bearing_preload_n": "bearing.preload_n"}
 
 
@@ -205,7 +206,8 @@ def main(argv=None) -> int:
     ap.add_argument("--replicates", type=int, default=100)
     ap.add_argument("--quick", action="store_true", help="4 replicates (a check)")
     ap.add_argument("--force", type=float, default=100.0, help="working force [N]")
-    ap.add_argument("--workers", type=int, default=1, help="processes, each its own share")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="worker processes at a time (each runs at most 10 replicates)")
     ap.add_argument("--shard", default=None, help=argparse.SUPPRESS)  # "i/n" (a worker)
     ap.add_argument("--report-only", action="store_true", help="summarise the files")
     args = ap.parse_args(argv)
@@ -216,21 +218,26 @@ def main(argv=None) -> int:
     todo = [k for k in range(n) if k not in done]
     if args.shard:
         i, m = (int(x) for x in args.shard.split("/"))
-        run(todo[i::m], OUT / f"{args.force:g}N.w{i}.jsonl", args.force)
+        run(todo[i::m][:PER_PROCESS], OUT / f"{args.force:g}N.w{i}.jsonl", args.force)
         return 0
     print(f"{len(done)} replicate(s) done, {len(todo)} to run at {args.force:g} N", flush=True)
     if todo and not args.report_only:
-        if args.workers > 1:
+        if not (OUT / f"{args.force:g}N_truth.json").exists():
             # The truth's values first, so the workers do not both compute them.
             run(todo[:1], OUT / f"{args.force:g}N.jsonl", args.force)
+        # Workers of at most PER_PROCESS replicates each, then fresh processes: every
+        # continuation leaves compiled programs behind, and a process that ran 13
+        # forecasts beside another ran out of the machine's 24 GB.
+        while True:
+            done = {r["replicate"] for f in files(args.force) for r in read_done(f)}
+            if all(k in done for k in range(n)):
+                break
             procs = [subprocess.Popen([sys.executable, __file__, "--replicates", str(n),
                                        "--force", str(args.force), "--shard",
                                        f"{i}/{args.workers}"]) for i in range(args.workers)]
             if any(p.wait() for p in procs):
                 print("a worker failed; rerun to resume", file=sys.stderr)
                 return 1
-        else:
-            run(todo, OUT / f"{args.force:g}N.jsonl", args.force)
     rows = sorted({r["replicate"]: r for f in files(args.force) for r in read_done(f)
                    if r["replicate"] < n}.values(), key=lambda r: r["replicate"])
     if not rows:
