@@ -100,9 +100,10 @@ def test_posterior_draws_replace_the_gaussian_ones_where_the_delta_is_doubtful(f
                                                                                tmp_path):
     """With posterior draws in the folder (posterior.npz, as `bsfs identify --posterior`
     writes them; here heavy-tailed draws around the estimate, multivariate Student t with
-    4 degrees of freedom and the identification's covariance as scale) a quantity whose second-order check fails takes its interval from them: it
-    matches those draws pushed through the model itself, and is wider than the Gaussian
-    one. Draws of an unconverged sampler are not used, and the note says so."""
+    4 degrees of freedom and the identification's covariance as scale) a quantity whose
+    second-order check fails takes its interval from them: it matches those draws pushed
+    through the model itself, and is wider than the Gaussian one. Draws of an unconverged
+    sampler are not used, and the note says so."""
     from identification._forecast_run import _modal
 
     ident_dir, _, data = folders
