@@ -152,31 +152,33 @@ def nonlinear_liftoff(ident, per_joint, start, stop):
             q.extra, joint=joint, per_joint={j: p.value for j, p in zip(JOINTS, per)}))
 
     def search(th, f0, f1):
-        """(F*, hint at F*) on the model at th: secant in the force from f0, f1."""
+        """(F*, hint at F*, m_theta and m_F there) on the model at th: secant in the force
+        from f0, f1 (each step's program returns the gradients with the value)."""
         p = ident.params_at(th)
 
         def m(force):
             hint, _ = locate_peak(p, force, start, stop, settings)
-            return m_and_grads(force, hint, th)[0], hint
+            return (*m_and_grads(force, hint, th), hint)
 
-        (m0, _), (m1, hint) = m(f0), m(f1)
+        m0 = m(f0)[0]
+        m1, *last = m(f1)
         scale = abs(m0) + abs(m1)
         for _ in range(LIFTOFF_STEPS):
             f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
-            m2, hint2 = m(f2)
-            f0, m0, f1, m1, hint = f1, m1, f2, m2, hint2
+            m2, *step = m(f2)
+            f0, m0, f1, m1, last = f1, m1, f2, m2, step
             if abs(m1) < LIFTOFF_RTOL * scale:
-                return f1, hint
+                return f1, *last[::-1]
         raise ForecastError("no convergence")
 
     per = list(per_joint)
     try:
-        f1, hint = search(ident.theta, 0.9 * lin.value, 0.95 * lin.value)
+        f1, hint, g_f, g_theta = search(ident.theta, 0.9 * lin.value, 0.95 * lin.value)
     except (ForecastError, ZeroDivisionError):
         lin.extra["nonlinear"] = "the search on the nonlinear orbits failed: linearised value"
         return total(lin), per
-    _, g_theta, g_f = m_and_grads(f1, hint, ident.theta)
-    grad, how = -g_theta / g_f if g_f != 0 else np.full_like(g_theta, np.nan), "implicit"
+    how = "implicit"
+    grad = -g_theta / g_f if g_f != 0 else np.full_like(g_theta, np.nan)
     if not np.all(np.isfinite(grad)):
         # The implicit gradient vanished (seen on 4 of 60 coverage replicates: m_theta and
         # m_F both exactly 0): central differences of the search itself instead, steps of
