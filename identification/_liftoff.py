@@ -113,6 +113,7 @@ LIFTOFF_RTOL = 1e-4
 def joint_min_deformation(params, force, hint, joint):
     """Smallest contact deformation [m] of a joint's two sides over the orbit at a located
     FRC peak (differentiable: `bsfs_jax.design.peak_orbit_samples`); <= 0: a side opens."""
+    import jax
     import jax.numpy as jnp
 
     from bsfs_jax.design import peak_orbit_samples
@@ -121,7 +122,13 @@ def joint_min_deformation(params, force, hint, joint):
     ys, system = peak_orbit_samples(params, force, hint)
     u = ys[:, 0] if joint == "bearing" else ys[:, 2] - ys[:, 1]
     pair = system.bearing if joint == "bearing" else system.nut
-    return jnp.min(jnp.stack(contact_deformations(u, pair)))
+    deformations = jnp.stack(contact_deformations(u, pair)).ravel()
+    # The smallest sample, chosen without gradient, then differentiated (the minimum over
+    # the orbit is stationary in time, so this is its exact derivative). Not `jnp.min`:
+    # the orbit's half-period symmetry makes one side's smallest sample bit-equal to the
+    # other's, and at that tie jnp.min's gradient came out exactly 0 inside the compiled
+    # program (5 of 67 coverage replicates; eager and theta + 1e-14 gave the right one).
+    return deformations[jnp.argmin(jax.lax.stop_gradient(deformations))]
 
 
 def nonlinear_liftoff(ident, per_joint, start, stop):
@@ -180,9 +187,9 @@ def nonlinear_liftoff(ident, per_joint, start, stop):
     how = "implicit"
     grad = -g_theta / g_f if g_f != 0 else np.full_like(g_theta, np.nan)
     if not np.all(np.isfinite(grad)):
-        # The implicit gradient vanished (seen on 4 of 60 coverage replicates: m_theta and
-        # m_F both exactly 0): central differences of the search itself instead, steps of
-        # a quarter standard deviation.
+        # A safeguard: should the implicit gradient be unusable (it was exactly 0 on 5 of
+        # 67 coverage replicates, from jnp.min's tie rule, see `joint_min_deformation`),
+        # central differences of the search itself, steps of a quarter standard deviation.
         how = "central differences of the search (the implicit gradient vanished)"
         grad = np.zeros_like(g_theta)
         for i in range(len(grad)):

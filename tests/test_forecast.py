@@ -177,6 +177,20 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
         force = factor * q["value"]
         hint, _ = locate_frc_peak(params, force, settings)
         assert sign * float(joint_min_deformation(params, force, hint, "bearing")) > 0
+    # Its interval rests on the implicit gradient (not the central-difference safeguard),
+    # and that gradient in the force matches central differences of the deformation on
+    # orbits located afresh 0.5 N either side.
+    assert q["gradient"] == "implicit"
+    from identification._liftoff import _min_deformation_program
+
+    force = q["value"]
+    hint, _ = locate_frc_peak(params, force, settings)
+    _, (_, g_f) = _min_deformation_program(ident.coordinates, jnp.asarray(ident.theta),
+                                           jnp.asarray(force), hint, "bearing")
+    m = [float(joint_min_deformation(params, f, locate_frc_peak(params, f, settings)[0],
+                                     "bearing")) for f in (force - 0.5, force + 0.5)]
+    assert float(g_f) < 0
+    assert float(g_f) == pytest.approx((m[1] - m[0]) / 1.0, rel=2e-2)
 
 
 def _refused(args, capsys, out):
