@@ -234,7 +234,13 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
     range of value + g.delta + delta.H.delta / 2 over `DRAWS` draws of delta from the
     covariance (numpy only), method `quadratic`; where the identification saved posterior
     draws (`Identified.draws`) delta runs over them instead (method "..., posterior
-    draws")."""
+    draws").
+
+    With the quadratic model the value is the draws' median, the model at the estimate is
+    kept as `plug_in`: there the plug-in value is biased by about half the curvature term
+    tr(H C) / 2. In the forecast's coverage study (docs/COVERAGE.md) the plug-in damping
+    ratio, peak and fold frequencies sat 0.3-0.5 std from the truth on average, the
+    median within the study's error of it."""
     c = ident.covariance
     sd = _std(g, ident)
     hc = h @ c
@@ -251,9 +257,10 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
         rng = np.random.default_rng(DRAW_SEED)
         delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
     q = float(value) + delta @ g + 0.5 * np.einsum("ni,ij,nj->n", delta, h, delta)
-    lo, hi = np.percentile(q, [2.5, 97.5])
-    extra.update(draws=len(delta), draws_std=float(np.std(q)) * scale)
-    return _quantity(name, unit, value, [lo, hi], quadratic, g, ident, scale, extra)
+    lo, median, hi = np.percentile(q, [2.5, 50.0, 97.5])
+    extra.update(draws=len(delta), draws_std=float(np.std(q)) * scale,
+                 plug_in=float(value) * scale)
+    return _quantity(name, unit, median, [lo, hi], quadratic, g, ident, scale, extra)
 
 
 def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,

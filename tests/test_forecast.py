@@ -88,8 +88,15 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
         else:
             assert x["method"] == "quadratic (exact Hessian)" and x["second_order"] > 0.1
             assert abs(x["std"] / sd - 1.0) > 0.06, name  # the delta std was off
-            lo, hi = np.percentile(mc[:, k], [2.5, 97.5])
+            lo, med, hi = np.percentile(mc[:, k], [2.5, 50.0, 97.5])
             assert x["ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo)), name
+            # The value is the draws' median; the model at the estimate is `plug_in`, off
+            # it by about the curvature term tr(H C) / 2.
+            assert x["value"] == pytest.approx(med, abs=0.05 * (hi - lo)), name
+            shift = 0.5 * np.trace(np.asarray(jax.hessian(lambda t: fn(t)[k])(
+                jnp.asarray(ident.theta))) @ ident.covariance)
+            assert x["value"] - x["plug_in"] == pytest.approx(shift, rel=0.3), name
+            assert abs(shift) > 0.2 * x["std"], name
     # The natural frequency is linear in theta over its interval; the damping ratio is not
     # (c_b and c_s are determined only as a combination, their exponentials are not).
     assert methods["natural_frequency_1_hz"] == "delta"
