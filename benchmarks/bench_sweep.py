@@ -286,8 +286,8 @@ def main():
     import inspect
     from collections import Counter
 
-    from bsfs_jax.analysis._orbit_check import check_orbits
     from bsfs_jax.analysis._verify import minimum_transient
+    from bsfs_jax.solvers import check_orbits
 
     vset = VerifySettings()
     n_rec = 16

@@ -36,6 +36,8 @@ from ._forecast_run import forecast as forecast
 from ._frf import FrfRecord as FrfRecord
 from ._frf import estimate_frf as estimate_frf
 from ._frf import frf_variance as frf_variance
+from ._load import load_record as load_record
+from ._load import load_records as load_records
 from ._measurement import HarmonicData as HarmonicData
 from ._measurement import harmonic_analysis as harmonic_analysis
 from ._parameters import DEFAULT_FIT as DEFAULT_FIT
@@ -58,16 +60,14 @@ from ._problem import Problem as Problem
 from ._profile import profile_intervals as profile_intervals
 from ._records import Record as Record
 from ._records import RecordError as RecordError
-from ._records import load_record as load_record
-from ._records import load_records as load_records
 from ._report import DATA_DIR as DATA_DIR
 from ._report import IdentificationResult as IdentificationResult
 from ._report import bundled_records as bundled_records
 from ._report import identify as identify
 from ._report import measurement_data as measurement_data
-from ._report import parameter_rows as parameter_rows
 from ._report import report_dict as report_dict
 from ._report import write_identified as write_identified
+from ._summary import parameter_rows as parameter_rows
 from ._summary import preload_verdicts as preload_verdicts
 from ._summary import summary_text as summary_text
 from ._synth import TestEffects as TestEffects

@@ -40,10 +40,10 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bsfs_jax.machine import tangent_matrices
 from bsfs_jax.model import restoring_forces
 
 from ._records import Record
@@ -170,11 +170,10 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
 
 
 def _matrices(system):
-    """(K, C, M) of the model linearised about x = 0 (see `receptance`)."""
-    zero = jnp.zeros(3)
-    k = jax.jacfwd(lambda x: restoring_forces(system, x, zero))(zero)
-    c = jax.jacfwd(lambda v: restoring_forces(system, zero, v))(zero)
-    return k, c, jnp.diag(system.mass)
+    """(K, C, M) of the model linearised about x = 0 (`bsfs_jax.machine.tangent_matrices`;
+    see `receptance`)."""
+    k, c, m = tangent_matrices(system)
+    return k, c, jnp.diag(m)
 
 
 def receptance(system, frequencies_hz):

@@ -1,4 +1,5 @@
-"""Exciter records: the record types, loading by file type, and the checks shared by formats.
+"""Exciter records: the record types and the checks shared by formats (the base of the
+readers; loading by file type is `_load.py`).
 
 Two kinds of record:
 
@@ -9,10 +10,11 @@ Two kinds of record:
   (accelerance, (m/s^2)/N) with the variance of each line, from an analyser or hammer test
   or estimated from a chirp/random record (both in `_frf.py`).
 
-`load_record(path)` dispatches on the extension (`.csv`: `_csv.py`; `.uff`/`.unv` UFF58:
-`_uff.py`; `.tdms`: `_tdms.py`) and on the content (`# kind = frf` in a CSV header; UFF58
-function type 4). A bad file is refused with a `RecordError` that names the file, the line
-or field, and what to do; the loaders never drop or repair data silently.
+`load_record(path)` (`_load.py`) dispatches on the extension (`.csv`: `_csv.py`;
+`.uff`/`.unv` UFF58: `_uff.py`; `.tdms`: `_tdms.py`) and on the content (`# kind = frf` in a
+CSV header; UFF58 function type 4). A bad file is refused with a `RecordError` that names
+the file, the line or field, and what to do; the loaders never drop or repair data
+silently.
 
 Header keys of a time record (`# key = value` in CSV, `key=value` in the UFF id lines):
 
@@ -30,14 +32,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from ._frf import FrfRecord
 
 COLUMNS = ("time_s", "force_n", "acceleration_m_s2")
 EXCITATIONS = ("sine", "chirp", "random")
@@ -122,42 +119,6 @@ class Record:
         return f"{self.name}: {self.excitation}{band}, {self.force_amplitude_n:g} {level}, {tail}"
 
 
-# ----------------------------------------------------------------------------- loading
-
-
-def load_record(path) -> Record | FrfRecord:
-    """Read and check one record (`.csv`, `.uff`/`.unv` UFF58 or `.tdms`): a time `Record` or an
-    `FrfRecord`. Raises `RecordError`."""
-    path = Path(path)
-    if not path.exists():
-        raise RecordError(f"{path}: no such file. Give the path of a record (.csv, .uff or "
-                          ".tdms).")
-    if path.suffix.lower() in (".uff", ".unv"):
-        from ._uff import load_uff
-
-        return load_uff(path)
-    if path.suffix.lower() == ".tdms":
-        from ._tdms import load_tdms
-
-        return load_tdms(path)
-    from ._csv import load_csv
-
-    return load_csv(path)
-
-
-def load_records(paths) -> list[Record | FrfRecord]:
-    """Read several records; refuses duplicates of the same file."""
-    seen = set()
-    out = []
-    for p in paths:
-        key = os.path.realpath(p)
-        if key in seen:
-            raise RecordError(f"{p}: named twice. Give each record once.")
-        seen.add(key)
-        out.append(load_record(p))
-    if not out:
-        raise RecordError("no records given")
-    return out
 
 
 def parse_value(text: str):

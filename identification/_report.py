@@ -15,6 +15,7 @@ from ._measurement import harmonic_analysis
 from ._parameters import DEFAULT_FIT
 from ._problem import MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
+from ._summary import parameter_rows, summary_text
 from ._uncertainty import DETERMINED_RATIO, IDENTIFIABLE_STD, Uncertainty, uncertainty
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
@@ -84,7 +85,7 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     record uses a linear model (with periodic-orbit records each profile point costs a
     re-fit of orbits; the report then says the check was skipped).
     """
-    from ._records import load_records
+    from ._load import load_records
 
     t0 = time.perf_counter()
     loaded = [r for r in records if not isinstance(r, str | Path)]
@@ -235,34 +236,6 @@ def _record_rows(res: IdentificationResult):
     return rows
 
 
-def parameter_rows(res: IdentificationResult) -> dict:
-    """report.json's `parameters`: value, std, ci95, identified and what they rest on."""
-    pb, u = res.problem, res.uncertainty
-    out = {}
-    for i, name in enumerate(pb.names):
-        lo, hi = u.ci95[i]
-        finite = bool(np.isfinite(lo) and np.isfinite(hi))
-        prior = float(pb.prior_values[i])
-        change = (float(u.values[i] / prior - 1.0) if pb.is_log[i]
-                  else float(u.values[i] - prior))
-        out[name] = dict(
-            key=pb.keys[i], speed_rpm=pb.param_speeds[i], unit=pb.units[i],
-            value=float(u.values[i]),
-            std=float(u.std[i]) if np.isfinite(u.std[i]) else None,
-            ci95=[float(lo), float(hi)] if finite else None,
-            ci_method=u.ci_method[i],
-            relative_std=float(u.scaled_std[i]) if pb.is_log[i] and np.isfinite(
-                u.scaled_std[i]) else None,
-            identified=bool(u.determined[i]), status=u.status(i),
-            prior=prior,
-            prior_sigma=None if u.prior_sigma is None else float(u.prior_sigma[i]),
-            data_share=None if u.data_share is None else float(u.data_share[i]),
-            change_from_prior=change,
-            differs_from_prior=bool(u.determined[i] and finite and not lo <= prior <= hi),
-        )
-    return out
-
-
 def covariance_block(res: IdentificationResult) -> dict:
     """The posterior covariance of the fitted coordinates theta, and how theta maps to the
     values: what `bsfs predict` carries through the model (NaN where undetermined; the
@@ -282,8 +255,6 @@ def covariance_block(res: IdentificationResult) -> dict:
 
 
 def report_dict(res: IdentificationResult) -> dict:
-    from ._summary import summary_text
-
     pb, fr, u = res.problem, res.fit, res.uncertainty
     sv = u.singular_values
     directions = [dict(singular_value=float(sv[i] / sv[0]), std=float(u.direction_std[i]),

@@ -1,4 +1,5 @@
-"""The identification's text summary: every number once, each with what it rests on."""
+"""The identification's text summary (every number once, each with what it rests on) and
+its parameter rows (report.json's `parameters`)."""
 
 from __future__ import annotations
 
@@ -26,10 +27,36 @@ def _fmt_ci(lo, hi) -> str:
     return f"[{lo:.4g}, {hi:.4g}]"
 
 
+def parameter_rows(res) -> dict:
+    """report.json's `parameters`: value, std, ci95, identified and what they rest on."""
+    pb, u = res.problem, res.uncertainty
+    out = {}
+    for i, name in enumerate(pb.names):
+        lo, hi = u.ci95[i]
+        finite = bool(np.isfinite(lo) and np.isfinite(hi))
+        prior = float(pb.prior_values[i])
+        change = (float(u.values[i] / prior - 1.0) if pb.is_log[i]
+                  else float(u.values[i] - prior))
+        out[name] = dict(
+            key=pb.keys[i], speed_rpm=pb.param_speeds[i], unit=pb.units[i],
+            value=float(u.values[i]),
+            std=float(u.std[i]) if np.isfinite(u.std[i]) else None,
+            ci95=[float(lo), float(hi)] if finite else None,
+            ci_method=u.ci_method[i],
+            relative_std=float(u.scaled_std[i]) if pb.is_log[i] and np.isfinite(
+                u.scaled_std[i]) else None,
+            identified=bool(u.determined[i]), status=u.status(i),
+            prior=prior,
+            prior_sigma=None if u.prior_sigma is None else float(u.prior_sigma[i]),
+            data_share=None if u.data_share is None else float(u.data_share[i]),
+            change_from_prior=change,
+            differs_from_prior=bool(u.determined[i] and finite and not lo <= prior <= hi),
+        )
+    return out
+
+
 def preload_verdicts(res) -> list[str]:
     """One line per fitted preload: the change from nominal and whether it is significant."""
-    from ._report import parameter_rows
-
     lines = []
     for name, row in parameter_rows(res).items():
         if not name.endswith("_preload"):

@@ -45,6 +45,7 @@ import numpy as np  # noqa: E402
 
 import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
+from bsfs_jax.files import write_atomic  # noqa: E402
 from identification._problem import is_frf  # noqa: E402
 
 FS = 10240.0
@@ -227,10 +228,13 @@ def run_replicate(truth, prior, design: str, replicate: int, frf_dir: Path | Non
     t2 = time.perf_counter()
     if frf_dir is not None:
         frf_dir.mkdir(parents=True, exist_ok=True)
-        tmp = frf_dir / f".r{replicate:04d}.npz"
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **frf_arrays(data))
-        os.replace(tmp, frf_dir / f"r{replicate:04d}.npz")
+        arrays = frf_arrays(data)
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:  # a file object: savez adds no ".npz" to it
+                np.savez_compressed(fh, **arrays)
+
+        write_atomic(frf_dir / f"r{replicate:04d}.npz", write)
     true_values = np.asarray([float(np.asarray(truth.get(k))) for k in pb.keys])
     z = np.log(unc.values / true_values) / unc.scaled_std
     lo, hi = unc.ci95[:, 0], unc.ci95[:, 1]

@@ -615,8 +615,7 @@ def _tests(src: Sources, v: Values):
 
     put("totals", totals)
     put("failed_files", lambda: ", ".join(f"**{x}**" for x in d["failed_files"].raw()) or "none")
-    put("slow", lambda: "included (`BSFS_SLOW` set)" if d["slow_tests"]
-        else "skipped (`BSFS_SLOW` unset)")
+    put("slow", lambda: "all run" if d["slow_tests"] else "not all run")
     put("args_note", lambda: (" with pytest arguments `" + " ".join(d["pytest_args"].raw())
                               + "` (a partial run)") if d["pytest_args"].raw() else "")
 

@@ -48,6 +48,13 @@ def parse_summary(output: str) -> dict | None:
     return None
 
 
+def _deselects_slow(args) -> bool:
+    """Whether the pytest arguments leave out the tests marked `slow` (`-m "not slow"`)."""
+    marks = [b for a, b in zip(args, args[1:], strict=False) if a == "-m"]
+    marks += [a[2:] for a in args if a.startswith("-m") and len(a) > 2]
+    return any("not slow" in m for m in marks)
+
+
 def _run(path, extra, env):
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", str(path), *extra], env=env,
@@ -117,7 +124,7 @@ def main(argv=None, files=None) -> int:
         totals = {k: sum(r.get(k, 0) for r in rows) for k in keys}
         write_record(Path(record_path), {
             "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
-            "pytest_args": extra, "slow_tests": bool(os.environ.get("BSFS_SLOW")),
+            "pytest_args": extra, "slow_tests": not _deselects_slow(extra),
             "load_average_at_start": load_start, "machine": _machine(),
             "files": len(rows), "failed_files": failed,
             "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},

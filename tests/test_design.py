@@ -312,8 +312,6 @@ def test_frc_peak_equals_the_continue_peak(params, frc_100n, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not __import__("os").environ.get("BSFS_SLOW"),
-                    reason="several minutes: set BSFS_SLOW=1")
 def test_frc_peak_gradient_at_5000n():
     """Cold preset, 5000 N, 900-1500 Hz: strongly nonlinear (contact loss)."""
     cold = preset("cold")

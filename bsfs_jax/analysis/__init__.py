@@ -32,5 +32,6 @@ from ._sweep_result import load_sweep as load_sweep
 from ._verify import VERDICT_FIELDS as VERDICT_FIELDS
 from ._verify import VerifySettings as VerifySettings
 from ._verify import minimum_transient as minimum_transient
+from ._verify import slowest_decay_rate as slowest_decay_rate
 from ._verify import verify_points as verify_points
 from ._verify import verify_sweep as verify_sweep

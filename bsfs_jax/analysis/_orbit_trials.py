@@ -5,9 +5,9 @@ samples that follow the orbit's linearisation (see `_verify.py`)."""
 import numpy as np
 
 from .._numerics import half_range
+from ..solvers import check_orbits
 from . import _evidence as ev
 from ._classify import strobe_period
-from ._orbit_check import check_orbits
 
 PERIODIC_PREFIX = "period-"
 
@@ -35,9 +35,9 @@ class OrbitTrials:
             part = items[k:k + s.batch]
             pad = part + [part[-1]] * (s.batch - len(part)) if len(items) > s.batch else part
             vals, ys, scs, ns = (np.array([it[j] for it in pad]) for j in range(4))
-            chk = check_orbits(self.p, vals, ys, scs, ns, tol=s.orbit_tol,
-                               max_steps=s.orbit_max_steps, max_period=s.max_period,
-                               settings=s.orbit_settings)
+            chk = check_orbits(self.p.vector_field, self.p.setup, self.p.data, vals, ys,
+                               scs, ns, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
+                               max_period=s.max_period, settings=s.orbit_settings)
             host = {f: np.asarray(getattr(chk, f)) for f in
                     ("state", "converged", "residual", "multipliers", "strobe", "samples",
                      "jac_distance", "monodromy")}

@@ -35,11 +35,10 @@ import numpy as np
 
 from .._files import jsonable, save_npz_atomic
 from .._numerics import half_range
-from ..solvers import SolverSettings, result_codes, result_text
+from ..solvers import CHECK_SETTINGS, SolverSettings, result_codes, result_text
 from . import _evidence as ev
 from ._extend import run_block
 from ._lyapunov import initial_tangent
-from ._orbit_check import CHECK_SETTINGS
 from ._orbit_trials import OrbitTrials, scale_of
 from ._spectrum import amplitude_spectrum, line_fraction
 

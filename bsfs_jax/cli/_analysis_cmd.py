@@ -4,21 +4,7 @@ import argparse
 
 import numpy as np
 
-from ._common import (
-    CLIError,
-    add_params_args,
-    count,
-    finite_float,
-    load_params_from_args,
-    out_dir,
-    positive_float,
-    progress_enabled,
-    save_figure,
-    tolerance,
-    validate_sweep_values,
-    warn_implausible_excitation,
-    write_json,
-)
+from . import _common as ui
 
 #: Most points of one sweep, and most samples (points x periods x samples per period).
 MAX_POINTS = 10**5
@@ -41,24 +27,24 @@ def register(sub) -> None:
     p.add_argument("--param", default="frequency_hz",
                    help="'frequency_hz', 'force_n' or a parameter key such as nut.balls, "
                    "bearing.contact_angle_deg, nut.preload_n (file units)")
-    p.add_argument("--start", type=finite_float, required=True, help="first value")
-    p.add_argument("--stop", type=finite_float, required=True, help="last value")
-    p.add_argument("--num", type=count(1, MAX_POINTS), required=True,
+    p.add_argument("--start", type=ui.finite_float, required=True, help="first value")
+    p.add_argument("--stop", type=ui.finite_float, required=True, help="last value")
+    p.add_argument("--num", type=ui.count(1, MAX_POINTS), required=True,
                    help="number of values (evenly spaced)")
-    p.add_argument("--frequency", type=finite_float, help="excitation frequency [Hz] (fixed)")
-    p.add_argument("--force", type=finite_float, default=5000.0,
+    p.add_argument("--frequency", type=ui.finite_float, help="excitation frequency [Hz] (fixed)")
+    p.add_argument("--force", type=ui.finite_float, default=5000.0,
                    help="excitation amplitude [N] on the nut (default 5000)")
     p.add_argument("--mode", choices=("cold", "continued"), default="cold")
     p.add_argument("--direction", choices=("up", "down", "both"), default="up",
                    help="continued mode: sweep up, down or both (hysteresis)")
-    add_params_args(p)
+    ui.add_params_args(p)
     p.add_argument("--transient", default="auto",
                    help="transient periods discarded at cold starts: 'auto' (default: three "
                    "time constants of the slowest linear mode per point when verifying, "
                    "else 200) or a number")
-    p.add_argument("--continued-transient", type=count(1, 10**7), default=20,
+    p.add_argument("--continued-transient", type=ui.count(1, 10**7), default=20,
                    help="transient periods of continued points (default 20)")
-    p.add_argument("--periods", type=count(1, 10**5), default=32,
+    p.add_argument("--periods", type=ui.count(1, 10**5), default=32,
                    help="recorded periods = stroboscopic samples - 1 (default 32; points "
                    "without a periodic orbit are continued in blocks by the verifier)")
     p.add_argument("--no-verify", action="store_true",
@@ -69,22 +55,22 @@ def register(sub) -> None:
                    "subharmonics beside the forced line)")
     p.add_argument("--no-folds", action="store_true",
                    help="continued mode: do not locate the folds behind the jumps")
-    p.add_argument("--samples-per-period", type=count(8, 10**4), default=32,
+    p.add_argument("--samples-per-period", type=ui.count(8, 10**4), default=32,
                    help="samples per recorded period (32)")
     p.add_argument("--lyapunov", action="store_true",
                    help="also integrate the tangent dynamics over every recorded record "
                    "(the verifier computes exponents with confidence intervals where it "
                    "needs them anyway)")
-    p.add_argument("--rtol", type=tolerance, default=1e-8)
-    p.add_argument("--atol", type=positive_float, default=1e-12)
-    p.add_argument("--max-steps", type=count(1, 10**10), default=4_000_000)
+    p.add_argument("--rtol", type=ui.tolerance, default=1e-8)
+    p.add_argument("--atol", type=ui.positive_float, default=1e-12)
+    p.add_argument("--max-steps", type=ui.count(1, 10**10), default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"),
                    help="integrator: dopri5-fused (default, fast forward-only loop) or a "
                    "diffrax solver: tsit5, dopri5, dopri8, kvaerno5")
-    p.add_argument("--batch", type=count(0, 10**4), default=8,
+    p.add_argument("--batch", type=ui.count(0, 10**4), default=8,
                    help="points integrated in lockstep (vmap; 0: the whole chunk)")
-    p.add_argument("--chunk", type=count(1, 10**5), default=32,
+    p.add_argument("--chunk", type=ui.count(1, 10**5), default=32,
                    help="points per checkpoint chunk")
     p.add_argument("--shard", action="store_true",
                    help="shard cold-mode chunks over all JAX devices")
@@ -99,28 +85,28 @@ def run(args) -> int:
     from ..solvers import SolverSettings
 
     if args.param == "frequency_hz" and min(args.start, args.stop) <= 0:
-        raise CLIError(f"frequencies must be positive, got --start {args.start} "
+        raise ui.CLIError(f"frequencies must be positive, got --start {args.start} "
                        f"--stop {args.stop}")
     if args.param == "force_n" and min(args.start, args.stop) < 0:
-        raise CLIError(f"force amplitudes must be >= 0, got --start {args.start} "
+        raise ui.CLIError(f"force amplitudes must be >= 0, got --start {args.start} "
                        f"--stop {args.stop}")
     if args.param != "frequency_hz" and args.frequency is None:
-        raise CLIError(f"sweeping {args.param} needs a fixed --frequency HZ")
+        raise ui.CLIError(f"sweeping {args.param} needs a fixed --frequency HZ")
     if args.frequency is not None and not args.frequency > 0:
-        raise CLIError(f"--frequency must be positive, got {args.frequency}")
+        raise ui.CLIError(f"--frequency must be positive, got {args.frequency}")
     if not args.force >= 0:
-        raise CLIError(f"--force must be >= 0, got {args.force}")
+        raise ui.CLIError(f"--force must be >= 0, got {args.force}")
     if args.transient != "auto":
         try:
-            transient = count(1, 10**7)(args.transient)
+            transient = ui.count(1, 10**7)(args.transient)
         except argparse.ArgumentTypeError as exc:
-            raise CLIError(f"--transient must be 'auto' or a number of periods: {exc}"
+            raise ui.CLIError(f"--transient must be 'auto' or a number of periods: {exc}"
                            ) from None
     if args.num * args.periods * args.samples_per_period > MAX_SAMPLES:
-        raise CLIError(f"--num {args.num} x --periods {args.periods} x --samples-per-period "
+        raise ui.CLIError(f"--num {args.num} x --periods {args.periods} x --samples-per-period "
                        f"{args.samples_per_period} samples exceed {MAX_SAMPLES:.0e}: the "
                        "spectra alone would not fit in memory; lower one of them")
-    params = load_params_from_args(args)
+    params = ui.load_params_from_args(args)
     verify = None if args.no_verify else VerifySettings()
     try:
         problem = bsfs_problem(params, args.param, frequency_hz=args.frequency,
@@ -132,42 +118,42 @@ def run(args) -> int:
             batch_size=args.batch, chunk_size=args.chunk,
             settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
     except ValueError as exc:
-        raise CLIError(str(exc)) from None
+        raise ui.CLIError(str(exc)) from None
     values = np.linspace(args.start, args.stop, args.num)
     if args.param not in ("frequency_hz", "force_n"):
-        validate_sweep_values(params, args.param, values, "--param")
-    warn_implausible_excitation(
+        ui.validate_sweep_values(params, args.param, values, "--param")
+    ui.warn_implausible_excitation(
         forces=values if args.param == "force_n" else [args.force],
         frequencies=values if args.param == "frequency_hz" else [args.frequency])
-    folder = out_dir(args.out)  # only now: a refused command line leaves no folder behind
+    folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)
     try:
         result = sweep(problem, values, mode=args.mode, direction=args.direction,
                        config=config, transient=fixed if verify is not None else None,
-                       checkpoint_dir=folder / "checkpoint", progress=progress_enabled(args),
+                       checkpoint_dir=folder / "checkpoint", progress=ui.progress_enabled(args),
                        shard=args.shard, verify=verify,
                        metadata={"parameters": source, "overrides": list(args.set),
                                  "frequency_hz": args.frequency, "force_n": args.force})
     except ValueError as exc:  # e.g. the --out folder holds a different sweep
-        raise CLIError(str(exc)) from None
+        raise ui.CLIError(str(exc)) from None
     jumps = result.jumps()
     if args.mode == "continued" and not args.no_folds:
         real = [j for j in jumps if j.hysteresis is not False]
         locate_jump_folds(problem, result, real)
     result.save(folder / "sweep.nc")
     summary = result.summary(jumps=jumps)
-    write_json(folder / "summary.json", summary)
+    ui.write_json(folder / "summary.json", summary)
     force = f"{args.force:g} N" if args.param != "force_n" else "swept force"
     where = f", {args.frequency:g} Hz" if args.param != "frequency_hz" else ""
     tag = f"({force}{where}, {source})"
     swept = {"frequency_hz": "excitation frequency", "force_n": "force amplitude"}.get(
         args.param, args.param)
-    save_figure(plot_bifurcation(result, title=f"Bifurcation diagram of the nut displacement "
+    ui.save_figure(plot_bifurcation(result, title=f"Bifurcation diagram of the nut displacement "
                                  f"vs {swept} {tag}"), folder / "bifurcation.png")
-    save_figure(plot_frc(result, jumps=jumps), folder / "frc.png")
-    save_figure(plot_waterfall(result, log_amplitude=args.log_waterfall),
+    ui.save_figure(plot_frc(result, jumps=jumps), folder / "frc.png")
+    ui.save_figure(plot_waterfall(result, log_amplitude=args.log_waterfall),
                 folder / "waterfall.png")
     failed = summary["failed_points"]
     counts = ", ".join(f"{k} {v}" for k, v in summary["motion_counts"].items())

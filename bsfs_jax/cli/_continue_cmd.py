@@ -5,20 +5,7 @@ import time
 
 import numpy as np
 
-from ._common import (
-    CLIError,
-    add_params_args,
-    count,
-    finite_float,
-    load_params_from_args,
-    out_dir,
-    positive_float,
-    progress_enabled,
-    save_figure,
-    tolerance,
-    write_bytes_atomic,
-    write_json,
-)
+from . import _common as ui
 
 _DOFS = {"bearing": 0, "screw": 1, "nut": 2}
 
@@ -31,36 +18,36 @@ def register(sub) -> None:
         "with harmonic balance or shooting. Folds are cross-checked with the other method. "
         "Writes frc.png (stable solid, unstable dashed, bifurcations marked), branch.csv, "
         "bifurcations.json and summary.json.")
-    p.add_argument("--start", type=finite_float, required=True, metavar="HZ",
+    p.add_argument("--start", type=ui.finite_float, required=True, metavar="HZ",
                    help="start frequency [Hz] (a transient simulation there gives the guess)")
-    p.add_argument("--stop", type=finite_float, required=True, metavar="HZ",
+    p.add_argument("--stop", type=ui.finite_float, required=True, metavar="HZ",
                    help="stop frequency [Hz]")
-    p.add_argument("--force", type=finite_float, default=5000.0, metavar="N",
+    p.add_argument("--force", type=ui.finite_float, default=5000.0, metavar="N",
                    help="force amplitude on the nut [N] (5000, as sweep and map)")
-    add_params_args(p)
+    ui.add_params_args(p)
     p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
                    help="orbit method: harmonic balance (hb), shooting, or auto (default: "
                    "hb where its error estimate passes along the whole branch, else shooting)")
-    p.add_argument("--harmonics", type=count(1, 1024), default=8,
+    p.add_argument("--harmonics", type=ui.count(1, 1024), default=8,
                    help="starting harmonic count for hb; doubled where the error estimate "
                    "exceeds --hb-tol (8)")
-    p.add_argument("--hb-tol", type=finite_float, default=1e-5,
+    p.add_argument("--hb-tol", type=ui.finite_float, default=1e-5,
                    help="hb error tolerance: estimated state error relative to the orbit "
                    "size (1e-5)")
     p.add_argument("--no-cross-check", action="store_true",
                    help="skip the cross-check of the folds with the other method")
-    p.add_argument("--ds", type=finite_float, default=0.1,
+    p.add_argument("--ds", type=ui.finite_float, default=0.1,
                    help="initial arclength step in scaled units (0.1; adapted)")
-    p.add_argument("--ds-max", type=positive_float, default=None,
+    p.add_argument("--ds-max", type=ui.positive_float, default=None,
                    help="largest step (10 ds)")
-    p.add_argument("--max-points", type=count(2, 10**6), default=400,
+    p.add_argument("--max-points", type=ui.count(2, 10**6), default=400,
                    help="most branch points (400)")
     p.add_argument("--dof", choices=sorted(_DOFS), default="nut",
                    help="mass whose amplitude is plotted and tabulated (nut)")
-    p.add_argument("--transient-periods", type=count(0, 10**7), default=150,
+    p.add_argument("--transient-periods", type=ui.count(0, 10**7), default=150,
                    help="periods simulated from rest at --start for the first guess (150)")
-    p.add_argument("--rtol", type=tolerance, default=1e-11, help="ODE rtol (1e-11)")
-    p.add_argument("--atol", type=positive_float, default=1e-13,
+    p.add_argument("--rtol", type=ui.tolerance, default=1e-11, help="ODE rtol (1e-11)")
+    p.add_argument("--atol", type=ui.positive_float, default=1e-13,
                    help="ODE atol, on states scaled to order one (1e-13)")
     p.add_argument("--solver", default="dopri8",
                    choices=("dopri8", "dopri5", "tsit5", "kvaerno5"),
@@ -114,18 +101,18 @@ def run_continue(args) -> int:
     from ..solvers import HarmonicBalance, Shooting, SolverError, SolverSettings, continue_orbits
 
     if not (args.start > 0 and args.stop > 0) or args.start == args.stop:
-        raise CLIError(f"--start and --stop must be positive and differ, got {args.start} "
+        raise ui.CLIError(f"--start and --stop must be positive and differ, got {args.start} "
                        f"and {args.stop}")
     if not args.force > 0:
-        raise CLIError(f"--force must be positive, got {args.force}")
+        raise ui.CLIError(f"--force must be positive, got {args.force}")
     if not args.ds > 0 or args.max_points < 2 or args.transient_periods < 0:
-        raise CLIError("need --ds > 0, --max-points >= 2 and --transient-periods >= 0")
+        raise ui.CLIError("need --ds > 0, --max-points >= 2 and --transient-periods >= 0")
     if args.ds_max is not None and not args.ds_max >= args.ds:
-        raise CLIError(f"--ds-max {args.ds_max:g} must be at least --ds {args.ds:g}")
+        raise ui.CLIError(f"--ds-max {args.ds_max:g} must be at least --ds {args.ds:g}")
     if not (args.harmonics >= 1 and args.hb_tol > 0):
-        raise CLIError("need --harmonics >= 1 and --hb-tol > 0")
-    params = load_params_from_args(args)
-    folder = out_dir(args.out)
+        raise ui.CLIError("need --harmonics >= 1 and --hb-tol > 0")
+    params = ui.load_params_from_args(args)
+    folder = ui.out_dir(args.out)
     settings = SolverSettings(rtol=args.rtol, atol=args.atol, solver=args.solver)
     shooting = Shooting(settings=settings)
     hb = HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol)
@@ -143,7 +130,7 @@ def run_continue(args) -> int:
               flush=True)
         return continue_orbits(family, guess, args.start, args.stop, method=method,
                                ds=args.ds, ds_max=args.ds_max, max_points=args.max_points,
-                               amplitude_index=dof, progress=progress_enabled(args))
+                               amplitude_index=dof, progress=ui.progress_enabled(args))
 
     t_cont = time.perf_counter()
     notes = []
@@ -193,7 +180,7 @@ def run_continue(args) -> int:
     buf = io.StringIO()
     buf.write("\n".join(header) + "\n" + ",".join(cols) + "\n")
     np.savetxt(buf, table, delimiter=",", fmt="%.10e")
-    write_bytes_atomic(folder / "branch.csv", buf.getvalue().encode())
+    ui.write_bytes_atomic(folder / "branch.csv", buf.getvalue().encode())
 
     check_by_f = {c["frequency_hz"]: c for c in checks}
     bifs = [{
@@ -207,14 +194,14 @@ def run_continue(args) -> int:
         "method": primary.name,
         **({"cross_check": check_by_f[b.p]} if b.p in check_by_f else {}),
     } for b in branch.bifurcations]
-    write_json(folder / "bifurcations.json", bifs)
+    ui.write_json(folder / "bifurcations.json", bifs)
 
     fig = plot_continuation(
         branch, y_label=f"{args.dof.capitalize()} amplitude (half peak-to-peak) [µm]",
         title=f"BSFS frequency response by continuation ({primary.name}): {args.force:g} N, "
               f"{float(params.thermal.speed_rpm):g} r/min, thermal "
               f"{'on' if params.thermal.enabled else 'off'}")
-    save_figure(fig, folder / "frc.png")
+    ui.save_figure(fig, folder / "frc.png")
     import matplotlib.pyplot as plt
 
     plt.close(fig)
@@ -256,7 +243,7 @@ def run_continue(args) -> int:
         "continuation_s": t_cont,
         "runtime_s": time.perf_counter() - started,
     }
-    write_json(folder / "summary.json", summary)
+    ui.write_json(folder / "summary.json", summary)
     for note in notes:
         print(f"note: {note}")
     print(f"{len(branch)} orbits by {primary.name} ({summary['stable_points']} stable), peak "

@@ -4,16 +4,7 @@ import math
 import sys
 import time
 
-from ._common import (
-    CLIError,
-    add_params_args,
-    count,
-    finite_float,
-    load_params_from_args,
-    out_dir,
-    save_figure,
-    write_json,
-)
+from . import _common as ui
 
 
 def register(sub) -> None:
@@ -41,7 +32,7 @@ def register(sub) -> None:
     p.add_argument("--no-fd-probe", action="store_true",
                    help="skip the default central-difference probe of the two largest "
                    "entries (the gradients are then reported as unchecked)")
-    add_params_args(p)
+    ui.add_params_args(p)
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -63,16 +54,16 @@ def register(sub) -> None:
     q.add_argument("--bounds", metavar="NAME=LO:HI,...",
                    help="bounds in file units, e.g. nut.balls=40:60,nut.preload_n=1000:2000 "
                    "(default +-30 %% of the start value)")
-    q.add_argument("--min-stiffness", type=finite_float, metavar="N_PER_UM",
+    q.add_argument("--min-stiffness", type=ui.finite_float, metavar="N_PER_UM",
                    help="require a static axial stiffness of at least this [N/um]")
-    q.add_argument("--max-steps", type=count(1, 10**5), default=60,
+    q.add_argument("--max-steps", type=ui.count(1, 10**5), default=60,
                    help="BFGS steps per penalty round (60)")
     q.add_argument("--no-verify", action="store_true", help="skip the simulation check")
     q.add_argument("--no-fd-probe", action="store_true",
                    help="skip the central-difference probe of the exact gradient's largest "
                    "entries at the start and at the optimum (reported as unchecked then)")
     _operating_args(q, DEFAULT_FREQUENCY_HZ, DEFAULT_FORCE_N)
-    add_params_args(q)
+    ui.add_params_args(q)
     q.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     q.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -80,19 +71,19 @@ def register(sub) -> None:
 
 
 def _operating_args(p, f0, p0):
-    p.add_argument("--frequency", type=finite_float, metavar="HZ",
+    p.add_argument("--frequency", type=ui.finite_float, metavar="HZ",
                    help=f"operating frequency of the point orbit metrics (amplitude, floquet) "
                    f"[Hz] (default {f0:g}, the paper's exciter tests); frc_peak locates its "
                    "own peak frequency and the static metrics use none, so it is refused "
                    "for them")
-    p.add_argument("--force", type=finite_float, metavar="N",
+    p.add_argument("--force", type=ui.finite_float, metavar="N",
                    help=f"force amplitude on the nut for orbit metrics [N] (default {p0:g})")
 
 
 def _names(text):
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     if not names:
-        raise CLIError("--vary is empty; give vocabulary names such as nut.balls,nut.preload_n")
+        raise ui.CLIError("--vary is empty; give vocabulary names such as nut.balls,nut.preload_n")
     return names
 
 
@@ -105,15 +96,15 @@ def _parse_bounds(text) -> dict:
         if not item:
             continue
         if "=" not in item or ":" not in item.split("=", 1)[1]:
-            raise CLIError(f"--bounds expects NAME=LO:HI, got '{item}'")
+            raise ui.CLIError(f"--bounds expects NAME=LO:HI, got '{item}'")
         name, rng = item.split("=", 1)
         lo, hi = rng.split(":", 1)
         try:
             lo, hi = float(lo), float(hi)
         except ValueError:
-            raise CLIError(f"--bounds {name}: '{rng}' is not LO:HI numbers") from None
+            raise ui.CLIError(f"--bounds {name}: '{rng}' is not LO:HI numbers") from None
         if not (math.isfinite(lo) and math.isfinite(hi)):
-            raise CLIError(f"--bounds {name}: '{rng}' must be finite numbers")
+            raise ui.CLIError(f"--bounds {name}: '{rng}' must be finite numbers")
         out[name.strip()] = (lo, hi)
     return out
 
@@ -121,15 +112,15 @@ def _parse_bounds(text) -> dict:
 def _check_operating_point(args, metric) -> None:
     """--frequency only where the metric has an operating frequency; positive values."""
     if args.frequency is not None and args.metric not in ("amplitude", "floquet"):
-        raise CLIError(f"--frequency means nothing for --metric {args.metric} (frc_peak finds "
+        raise ui.CLIError(f"--frequency means nothing for --metric {args.metric} (frc_peak finds "
                        "its own peak; the other metrics are static): leave it out")
     for flag, value in (("--frequency", args.frequency), ("--force", args.force)):
         if value is not None and not value > 0:
-            raise CLIError(f"{flag} must be positive, got {value:g}")
+            raise ui.CLIError(f"{flag} must be positive, got {value:g}")
 
 
 def _design_error(exc):
-    return CLIError(str(exc))
+    return ui.CLIError(str(exc))
 
 
 def _check_line(check: dict) -> str:
@@ -151,7 +142,7 @@ def run_sensitivity(args) -> int:
     )
     from ..plotting import tornado
 
-    params = load_params_from_args(args)
+    params = ui.load_params_from_args(args)
     names = _names(args.vary) if args.vary else DESIGN_PARAMETERS
     metric = get_metric(args.metric)
     _check_operating_point(args, metric)
@@ -160,7 +151,7 @@ def run_sensitivity(args) -> int:
                             force_n=args.force)
     except ValueError as exc:
         raise _design_error(exc) from None
-    out = out_dir(args.out)
+    out = ui.out_dir(args.out)
     t0 = time.perf_counter()
     try:
         res = sensitivities(metric.name, params, names, frequency_hz=args.frequency,
@@ -196,9 +187,9 @@ def run_sensitivity(args) -> int:
     data["paper_crosscheck"] = [{k: r[k] for k in ("parameter", "figure", "claim", "metric",
                                                    "expected", "normalised", "agrees")}
                                 for r in rows]
-    write_json(out / "sensitivity.json", data)
+    ui.write_json(out / "sensitivity.json", data)
     fig = tornado(res, compare=fd)
-    save_figure(fig, out / "sensitivity.png")
+    ui.save_figure(fig, out / "sensitivity.png")
     md = [f"# Sensitivity of {metric.label}", "",
           f"{metric.description}.", "",
           f"Value: **{res.value:.6g} {res.unit}**"
@@ -241,19 +232,19 @@ def run_optimize(args) -> int:
     from ..params import params_to_toml
     from ..plotting import optimization_summary
 
-    params = load_params_from_args(args)
+    params = ui.load_params_from_args(args)
     metric = get_metric(args.metric)
     _check_operating_point(args, metric)
     names = _names(args.vary)
     bounds = _parse_bounds(args.bounds)
     if args.min_stiffness is not None and not args.min_stiffness > 0:
-        raise CLIError(f"--min-stiffness must be positive, got {args.min_stiffness}")
+        raise ui.CLIError(f"--min-stiffness must be positive, got {args.min_stiffness}")
     try:  # every input checked before anything is computed
         start = optimization_start(metric.name, params, names, bounds,
                                    frequency_hz=args.frequency, force_n=args.force)
     except ValueError as exc:
         raise _design_error(exc) from None
-    out_dir(args.out, create=False)
+    ui.out_dir(args.out, create=False)
     t0 = time.perf_counter()
     try:
         from ..design import with_values
@@ -273,15 +264,15 @@ def run_optimize(args) -> int:
                                        force_n=args.force)
                   for p in (start_params, res.params)]
     grad = _gradient_record(grad_start, grad_opt)
-    out = out_dir(args.out)
+    out = ui.out_dir(args.out)
     data = res.to_dict()
     data["wall_time_s"] = wall
     data["gradient_check"] = grad
     data["simulation_check"] = checks
-    write_json(out / "optimize.json", data)
+    ui.write_json(out / "optimize.json", data)
     write_text_atomic(out / "optimum.toml", params_to_toml(
         res.params, header=f"bsfs optimize --metric {metric.name}: optimum"))
-    save_figure(optimization_summary(res, checks=checks), out / "optimize.png")
+    ui.save_figure(optimization_summary(res, checks=checks), out / "optimize.png")
     md = _optimize_markdown(res, metric, checks, grad)
     write_text_atomic(out / "optimize.md", "\n".join(md) + "\n")
     print("\n".join(md))
@@ -311,7 +302,7 @@ def _probe_point(args, metric, params, names, where: str) -> dict:
     except FloatingPointError as exc:  # e.g. a difference step beyond the allowed range
         return gradient_not_checked(f"at the {where}: {exc}")
     if where == "start" and not check["passed"]:
-        raise CLIError(f"the exact gradient of {metric.name} at the start point "
+        raise ui.CLIError(f"the exact gradient of {metric.name} at the start point "
                        f"{check['summary'].split(';')[0]}: the optimiser would follow a wrong "
                        "gradient, so nothing was optimised (--no-fd-probe skips this check)")
     return check

@@ -3,16 +3,7 @@
 import sys
 import time
 
-from ._common import (
-    CLIError,
-    add_params_args,
-    count,
-    load_params_from_args,
-    out_dir,
-    save_figure,
-    snr_db,
-    write_json,
-)
+from . import _common as ui
 
 
 def register(sub) -> None:
@@ -31,7 +22,7 @@ def register(sub) -> None:
     p.add_argument("--data", choices=["paper-test", "stepped-sine", "preload-loss", "resonance"],
                    default="paper-test",
                    help="bundled data set used when no RECORD is given (paper-test)")
-    add_params_args(p)
+    ui.add_params_args(p)
     p.add_argument("--fit", metavar="NAME,...", default=None,
                    help="parameters to fit (default nut_k,bearing_k,screw_k,c_b,c_s,c_n,"
                    "expansion; also nut_preload,bearing_preload and d_n,d_b per speed)")
@@ -54,11 +45,11 @@ def register(sub) -> None:
                    help="steady-state model per sine record (auto: the linear FRF where its "
                    "predicted error is below 0.1 standard errors, else the first-order "
                    "harmonic-balance correction where that is, else the periodic orbit)")
-    p.add_argument("--starts", type=count(1, 100), default=3, help="multi-start count (3)")
-    p.add_argument("--max-steps", type=count(1, 100_000), default=100,
+    p.add_argument("--starts", type=ui.count(1, 100), default=3, help="multi-start count (3)")
+    p.add_argument("--max-steps", type=ui.count(1, 100_000), default=100,
                    help="LM iterations per start (100)")
-    p.add_argument("--seed", type=count(0, 2**32 - 1), default=0)
-    p.add_argument("--posterior", type=count(0, 100_000), default=0, metavar="DRAWS",
+    p.add_argument("--seed", type=ui.count(0, 2**32 - 1), default=0)
+    p.add_argument("--posterior", type=ui.count(0, 100_000), default=0, metavar="DRAWS",
                    help="also sample the posterior by NUTS (blackjax), DRAWS per chain "
                    "after as many warm-up steps, 4 chains; report.json's 'posterior' with "
                    "R-hat and effective sample sizes (needs priors and no periodic-orbit records; "
@@ -71,9 +62,9 @@ def register(sub) -> None:
     t = sub.add_parser("plan-test", help="compare exciter test plans by Fisher information",
                        description="Predict the standard errors of the chosen parameters "
                        "for candidate test plans and recommend one.")
-    add_params_args(t)
+    ui.add_params_args(t)
     t.add_argument("--fit", metavar="NAME,...", default=None)
-    t.add_argument("--noise-db", type=snr_db, default=35.0, metavar="DB",
+    t.add_argument("--noise-db", type=ui.snr_db, default=35.0, metavar="DB",
                    help="accelerometer SNR (35 dB); force sensor +5 dB")
     t.add_argument("--all-plans", action="store_true",
                    help="also a plan with 3000 N records (its Fisher information needs the "
@@ -92,7 +83,7 @@ def _fit_names(text):
     try:
         return idn.parse_fit(text)
     except ValueError as exc:
-        raise CLIError(str(exc)) from None
+        raise ui.CLIError(str(exc)) from None
 
 
 def run_identify(args) -> int:
@@ -100,40 +91,40 @@ def run_identify(args) -> int:
 
     from ..plotting import correlation_figure, fit_figure
 
-    prior = load_params_from_args(args)
+    prior = ui.load_params_from_args(args)
     names = _fit_names(args.fit)
     if args.no_priors and args.prior:
-        raise CLIError("--prior and --no-priors contradict each other; give one")
+        raise ui.CLIError("--prior and --no-priors contradict each other; give one")
     if 0 < args.posterior < idn.MIN_DRAWS:
-        raise CLIError(f"--posterior: give at least {idn.MIN_DRAWS} draws per chain (or 0 "
+        raise ui.CLIError(f"--posterior: give at least {idn.MIN_DRAWS} draws per chain (or 0 "
                        "for none)")
     if args.posterior and args.no_priors:
-        raise CLIError("--posterior needs priors (without them an undetermined parameter "
+        raise ui.CLIError("--posterior needs priors (without them an undetermined parameter "
                        "has an improper posterior); drop --no-priors")
     try:
         priors = None if args.no_priors else idn.parse_priors(args.prior, names)
     except ValueError as exc:
-        raise CLIError(str(exc)) from None
+        raise ui.CLIError(str(exc)) from None
     earlier = _read_report(args.compare) if args.compare else None
     records = args.records or [str(p) for p in idn.bundled_records(args.data)]
     if not args.records:
         print(f"bsfs identify: no records named; using the bundled SYNTHETIC data set "
               f"'{args.data}' ({len(records)} records)", file=sys.stderr)
-    out = out_dir(args.out)
+    out = ui.out_dir(args.out)
     t0 = time.perf_counter()
     try:
         res = idn.identify(records, prior, names, model=args.model, starts=args.starts,
                            seed=args.seed, max_steps=args.max_steps, priors=priors,
                            profile={"auto": "auto", "on": True, "off": False}[args.profile])
     except (idn.RecordError, ValueError) as exc:
-        raise CLIError(str(exc)) from None
+        raise ui.CLIError(str(exc)) from None
     report = idn.report_dict(res)
     post = _posterior(res, args) if args.posterior else None
     if post is not None:
         report["posterior"] = post.as_dict()
         report["summary"] += "\n" + idn.posterior_text(report["posterior"], report)
     paths = idn.write_identified(res, out)
-    write_json(out / "report.json", report)
+    ui.write_json(out / "report.json", report)
     written = [*paths, out / "report.json"]
     if post is not None:  # the draws themselves, for `bsfs predict`
         import numpy as np
@@ -147,7 +138,7 @@ def run_identify(args) -> int:
     if sines:
         fig = fit_figure([d.record for d, _, _ in sines], [c for _, _, c in sines],
                          [d.frequency_hz for d, _, _ in sines], [m for _, m, _ in sines])
-        save_figure(fig, out / "fit.png", tight=False)
+        ui.save_figure(fig, out / "fit.png", tight=False)
         written.append(out / "fit.png")
     frfs = [(d, c) for d, m, c in zip(res.data, res.problem.models, res.model_harmonics())
             if m == "frf"]
@@ -157,14 +148,14 @@ def run_identify(args) -> int:
         fig = frf_fit_figure([d.frequency_hz for d, _ in frfs], [d.accelerance for d, _ in frfs],
                              [c for _, c in frfs], [d.variance for d, _ in frfs],
                              [d.name for d, _ in frfs])
-        save_figure(fig, out / "frf_fit.png")
+        ui.save_figure(fig, out / "frf_fit.png")
         written.append(out / "frf_fit.png")
     if earlier is not None:
         written.append(_compare(earlier, report, out))
     u = res.uncertainty
     fig2 = correlation_figure(res.problem.names, u.correlation, u.singular_values,
                               u.direction_std, 0.1)
-    save_figure(fig2, out / "correlation.png")
+    ui.save_figure(fig2, out / "correlation.png")
     written.append(out / "correlation.png")
     import matplotlib.pyplot as plt
 
@@ -181,7 +172,7 @@ def _posterior(res, args):
         return idn.posterior(res.fit, res.uncertainty, samples=args.posterior,
                              warmup=args.posterior, chains=4, seed=args.seed)
     except ValueError as exc:
-        raise CLIError(f"--posterior: {exc}") from None
+        raise ui.CLIError(f"--posterior: {exc}") from None
 
 
 def _read_report(other_dir):
@@ -194,7 +185,7 @@ def _read_report(other_dir):
         _title(other)
         return other
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise CLIError(f"--compare: cannot read '{path}' as a `bsfs identify` report "
+        raise ui.CLIError(f"--compare: cannot read '{path}' as a `bsfs identify` report "
                        f"({exc.__class__.__name__}); give the --out folder of an earlier "
                        "identify run") from None
 
@@ -203,7 +194,7 @@ def _compare(other, report, out):
     from ..plotting import identification_comparison_figure
 
     panels = [(_title(other), other["parameters"]), (_title(report), report["parameters"])]
-    save_figure(identification_comparison_figure(panels), out / "compare.png")
+    ui.save_figure(identification_comparison_figure(panels), out / "compare.png")
     return out / "compare.png"
 
 
@@ -220,9 +211,9 @@ def run_plan(args) -> int:
 
     from ..plotting import plan_figure
 
-    prior = load_params_from_args(args)
+    prior = ui.load_params_from_args(args)
     names = _fit_names(args.fit)
-    out = out_dir(args.out)
+    out = ui.out_dir(args.out)
     try:
         f1 = None
         if not args.no_resonance:
@@ -240,13 +231,13 @@ def run_plan(args) -> int:
         result = idn.plan_test(prior, names, idn.candidate_plans(args.all_plans, f1),
                                accel_snr_db=args.noise_db, force_snr_db=args.noise_db + 5.0)
     except ValueError as exc:
-        raise CLIError(str(exc)) from None
-    write_json(out / "plan.json", result)
+        raise ui.CLIError(str(exc)) from None
+    ui.write_json(out / "plan.json", result)
     params = result["parameters"]
     fig = plan_figure([r["name"] for r in result["plans"]], params,
                       [[r["expected_std"][p] for p in params] for r in result["plans"]],
                       threshold=result["threshold"], recommended=result["recommended"])
-    save_figure(fig, out / "plan.png")
+    ui.save_figure(fig, out / "plan.png")
     print(f"Expected standard errors (relative; um for offsets) at {args.noise_db:g} dB:")
     print(f"{'plan':<40}{'records':>8}{'time s':>8}  " + " ".join(f"{p:>10}" for p in params))
     for r in result["plans"]:

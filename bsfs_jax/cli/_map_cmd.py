@@ -2,20 +2,7 @@
 
 import numpy as np
 
-from ._common import (
-    CLIError,
-    add_params_args,
-    count,
-    finite_float,
-    load_params_from_args,
-    out_dir,
-    positive_float,
-    progress_enabled,
-    save_figure,
-    tolerance,
-    warn_implausible_excitation,
-    write_json,
-)
+from . import _common as ui
 
 FREQUENCY, FORCE, DAMPING_SCALE = "frequency_hz", "force_n", "damping_scale"
 DAMPERS = ("damping.bearing_n_s_per_m", "damping.screw_n_s_per_m", "damping.nut_n_s_per_m")
@@ -48,56 +35,56 @@ def register(sub) -> None:
     p.add_argument("--x", default=FREQUENCY,
                    help="parameter swept along each row: frequency_hz (default), force_n or "
                    "a parameter key such as nut.preload_n (file units)")
-    p.add_argument("--x-start", type=finite_float, required=True)
-    p.add_argument("--x-stop", type=finite_float, required=True)
+    p.add_argument("--x-start", type=ui.finite_float, required=True)
+    p.add_argument("--x-stop", type=ui.finite_float, required=True)
     p.add_argument("--x-num", type=int, required=True)
     p.add_argument("--y", default=FORCE,
                    help="parameter fixed per row: force_n (default), frequency_hz, a "
                    "parameter key, or damping_scale (multiplies the bearing, screw and nut "
                    "dampers of the parameter file)")
-    p.add_argument("--y-start", type=finite_float, required=True)
-    p.add_argument("--y-stop", type=finite_float, required=True)
+    p.add_argument("--y-start", type=ui.finite_float, required=True)
+    p.add_argument("--y-stop", type=ui.finite_float, required=True)
     p.add_argument("--y-num", type=int, required=True)
-    p.add_argument("--frequency", type=finite_float, help="excitation frequency [Hz] when neither "
-                   "axis is frequency_hz")
-    p.add_argument("--force", type=finite_float, default=5000.0,
+    p.add_argument("--frequency", type=ui.finite_float,
+                   help="excitation frequency [Hz] when neither axis is frequency_hz")
+    p.add_argument("--force", type=ui.finite_float, default=5000.0,
                    help="excitation amplitude [N] when neither axis is force_n (5000)")
-    add_params_args(p)
-    p.add_argument("--transient", type=count(1, 10**7), default=200,
+    ui.add_params_args(p)
+    p.add_argument("--transient", type=ui.count(1, 10**7), default=200,
                    help="transient periods where no linear decay rate is known (default "
                    "200; otherwise each point runs three time constants of the slowest "
                    "linear mode)")
-    p.add_argument("--periods", type=count(1, 10**5), default=32,
+    p.add_argument("--periods", type=ui.count(1, 10**5), default=32,
                    help="recorded periods (default 32)")
-    p.add_argument("--samples-per-period", type=count(8, 10**4), default=32)
+    p.add_argument("--samples-per-period", type=ui.count(8, 10**4), default=32)
     p.add_argument("--lyapunov", action="store_true",
                    help="also integrate the tangent dynamics over every record (the "
                    "verification computes its own exponent where it needs one)")
-    p.add_argument("--rtol", type=tolerance, default=1e-8)
-    p.add_argument("--atol", type=positive_float, default=1e-12)
-    p.add_argument("--max-steps", type=count(1, 10**10), default=4_000_000)
+    p.add_argument("--rtol", type=ui.tolerance, default=1e-8)
+    p.add_argument("--atol", type=ui.positive_float, default=1e-12)
+    p.add_argument("--max-steps", type=ui.count(1, 10**10), default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"))
-    p.add_argument("--batch", type=count(0, 10**4), default=8,
+    p.add_argument("--batch", type=ui.count(0, 10**4), default=8,
                    help="points integrated in lockstep (0: the whole chunk)")
-    p.add_argument("--chunk", type=count(1, 10**5), default=32,
+    p.add_argument("--chunk", type=ui.count(1, 10**5), default=32,
                    help="points per checkpoint chunk")
     p.add_argument("--shard", action="store_true", help="shard rows over all JAX devices")
-    p.add_argument("--max-period", type=count(1, 1000), default=16,
+    p.add_argument("--max-period", type=ui.count(1, 1000), default=16,
                    help="largest n of period-n orbits looked for (16)")
-    p.add_argument("--max-blocks", type=count(1, 1000), default=8,
+    p.add_argument("--max-blocks", type=ui.count(1, 1000), default=8,
                    help="continuation blocks an unresolved point may get (8)")
     # A block is cut into 8 spectral segments of at least 4 periods (`VerifySettings`).
-    p.add_argument("--block-periods", type=count(32, 10**6), default=256,
+    p.add_argument("--block-periods", type=ui.count(32, 10**6), default=256,
                    help="forcing periods per continuation block (256; at least 32)")
     p.add_argument("--no-bifurcations", action="store_true",
                    help="skip the continuation of each row's periodic branch")
-    p.add_argument("--ds", type=positive_float, default=0.05,
+    p.add_argument("--ds", type=ui.positive_float, default=0.05,
                    help="initial arclength step of the row continuations (0.05)")
-    p.add_argument("--max-points", type=count(2, 10**6), default=200,
+    p.add_argument("--max-points", type=ui.count(2, 10**6), default=200,
                    help="most orbits per row continuation (200); a row whose continuation "
                    "stops early is named in summary.json's notes")
-    p.add_argument("--band", type=finite_float, nargs=2, metavar=("LO", "HI"),
+    p.add_argument("--band", type=ui.finite_float, nargs=2, metavar=("LO", "HI"),
                    help="continue each row's branch over this frequency band only (default: "
                    "the whole x range)")
     p.add_argument("--no-progress", action="store_true")
@@ -123,37 +110,37 @@ def _check(args) -> None:
         name, start, stop, num = (getattr(args, f"{axis}{s}") for s in
                                   ("", "_start", "_stop", "_num"))
         if not 1 <= num <= MAX_NUM:
-            raise CLIError(f"--{axis}-num must be a whole number from 1 to {MAX_NUM:,}, "
+            raise ui.CLIError(f"--{axis}-num must be a whole number from 1 to {MAX_NUM:,}, "
                            f"got {num}")
         if not start < stop:
-            raise CLIError(f"--{axis}-start must be smaller than --{axis}-stop, got {start:g} "
+            raise ui.CLIError(f"--{axis}-start must be smaller than --{axis}-stop, got {start:g} "
                            f"and {stop:g}")
         if name == FREQUENCY and not start > 0:
-            raise CLIError(f"frequencies must be positive, got --{axis}-start {start:g}")
+            raise ui.CLIError(f"frequencies must be positive, got --{axis}-start {start:g}")
         if name == DAMPING_SCALE and (axis == "x" or not start > 0):
-            raise CLIError("damping_scale is a --y parameter only, with positive values")
+            raise ui.CLIError("damping_scale is a --y parameter only, with positive values")
         if name not in (FREQUENCY, FORCE, DAMPING_SCALE):
             if lookup_key(name).kind != "float":  # unknown: ParameterError, one line
-                raise CLIError(f"'{name}' is a switch, not a scalar parameter")
+                raise ui.CLIError(f"'{name}' is a switch, not a scalar parameter")
     if args.x == args.y:
-        raise CLIError(f"--x and --y are the same parameter '{args.x}'")
+        raise ui.CLIError(f"--x and --y are the same parameter '{args.x}'")
     if FREQUENCY not in (args.x, args.y) and not (args.frequency or 0) > 0:
-        raise CLIError("neither axis is frequency_hz: give a positive --frequency HZ")
+        raise ui.CLIError("neither axis is frequency_hz: give a positive --frequency HZ")
     if args.frequency is not None and not args.frequency > 0:
-        raise CLIError(f"--frequency must be positive, got {args.frequency}")
+        raise ui.CLIError(f"--frequency must be positive, got {args.frequency}")
     if not args.force > 0:
-        raise CLIError(f"--force must be positive, got {args.force}")
+        raise ui.CLIError(f"--force must be positive, got {args.force}")
     if FORCE in (args.x, args.y):
         start = args.x_start if args.x == FORCE else args.y_start
         if not start >= 0:
-            raise CLIError(f"force amplitudes must be >= 0, got {start:g}")
+            raise ui.CLIError(f"force amplitudes must be >= 0, got {start:g}")
     if args.band is not None and not 0 < args.band[0] < args.band[1]:
-        raise CLIError(f"--band needs 0 < LO < HI, got {args.band[0]:g} {args.band[1]:g}")
+        raise ui.CLIError(f"--band needs 0 < LO < HI, got {args.band[0]:g} {args.band[1]:g}")
     if args.x_num * args.y_num > MAX_POINTS:
-        raise CLIError(f"--x-num x --y-num = {args.x_num * args.y_num:,} points exceed "
+        raise ui.CLIError(f"--x-num x --y-num = {args.x_num * args.y_num:,} points exceed "
                        f"{MAX_POINTS:,}; lower one of them")
     if args.x_num * args.y_num * args.periods * args.samples_per_period > MAX_SAMPLES:
-        raise CLIError(f"points x --periods x --samples-per-period exceed {MAX_SAMPLES:.0e} "
+        raise ui.CLIError(f"points x --periods x --samples-per-period exceed {MAX_SAMPLES:.0e} "
                        "samples: the spectra would not fit in memory; lower one of them")
 
 
@@ -175,14 +162,13 @@ def _check_grid(params, args, x, ys) -> None:
 
 
 def run(args) -> int:
-    from ..analysis import SweepConfig, atlas, bsfs_problem
-    from ..analysis._verify import VerifySettings
+    from ..analysis import SweepConfig, VerifySettings, atlas, bsfs_problem
     from ..params import validate
     from ..plotting import plot_atlas_amplitude, plot_atlas_motion
     from ..solvers import SolverSettings
 
     _check(args)
-    params = load_params_from_args(args)
+    params = ui.load_params_from_args(args)
     base = {k: float(params.get(k)) for k in DAMPERS}
 
     def row(y):
@@ -207,7 +193,7 @@ def run(args) -> int:
     ys = np.linspace(args.y_start, args.y_stop, args.y_num)
     # Refuse up front a range that crosses an invalid value (not after some rows ran).
     _check_grid(params, args, x, ys)
-    warn_implausible_excitation(
+    ui.warn_implausible_excitation(
         forces=[*(x if args.x == FORCE else []), *(ys if args.y == FORCE else []), args.force],
         frequencies=[*(x if args.x == FREQUENCY else []), *(ys if args.y == FREQUENCY else []),
                      args.frequency])
@@ -255,33 +241,33 @@ def run(args) -> int:
             settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
         y_unit = unit.get(args.y) or parameter_unit(args.y)
     except ValueError as exc:
-        raise CLIError(str(exc).splitlines()[0]) from None
+        raise ui.CLIError(str(exc).splitlines()[0]) from None
     verify = VerifySettings(max_period=args.max_period, max_blocks=args.max_blocks,
                             min_blocks=min(3, args.max_blocks),
                             block_periods=args.block_periods,
                             align_periods=min(16, args.block_periods // 4))
-    folder = out_dir(args.out)  # only now: a refused command line leaves no folder behind
+    folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
     try:
         result = atlas(
             row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,
             verify=verify, checkpoint_dir=folder / "checkpoint",
-            progress=progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
+            progress=ui.progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
             x_label=_words(args.x), y_label=_words(args.y),
             metadata={"parameters": source, "overrides": list(args.set), **{
                 k: v for k, v in ((FREQUENCY, args.frequency), (FORCE, args.force))
                 if k not in (args.x, args.y)}})
     except ValueError as exc:
-        raise CLIError(str(exc).splitlines()[0]) from None
+        raise ui.CLIError(str(exc).splitlines()[0]) from None
     result.save(folder / "atlas.nc")
     summary = result.summary()
     summary["notes"] = notes
-    write_json(folder / "summary.json", summary)
+    ui.write_json(folder / "summary.json", summary)
     fixed = ", ".join(s for s in (
         f"{args.frequency:g} Hz" if FREQUENCY not in (args.x, args.y) else "",
         f"{args.force:g} N" if FORCE not in (args.x, args.y) else "", source) if s)
-    save_figure(plot_atlas_motion(result, title=f"Verified motion of the nut ({fixed})"),
+    ui.save_figure(plot_atlas_motion(result, title=f"Verified motion of the nut ({fixed})"),
                 folder / "motion.png")
-    save_figure(plot_atlas_amplitude(result, title=f"Nut amplitude ({fixed})"),
+    ui.save_figure(plot_atlas_amplitude(result, title=f"Nut amplitude ({fixed})"),
                 folder / "amplitude.png")
     counts = ", ".join(f"{n} {k}" for k, n in summary["motion_counts"].items())
     print(f"bsfs map: {args.y_num} x {args.x_num} points ({counts}); "

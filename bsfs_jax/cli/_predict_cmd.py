@@ -1,6 +1,6 @@
 """`bsfs predict`: what an identified drive will do, with 95 % intervals (issue 20)."""
 
-from ._common import CLIError, finite_float, out_dir, save_figure, write_json
+from . import _common as ui
 
 
 def register(sub) -> None:
@@ -17,13 +17,13 @@ def register(sub) -> None:
         "prediction.json and prediction.png.")
     p.add_argument("--from", dest="source", required=True, metavar="DIR",
                    help="an identification's output folder (identified.toml, report.json)")
-    p.add_argument("--force", type=finite_float, default=100.0, metavar="N",
+    p.add_argument("--force", type=ui.finite_float, default=100.0, metavar="N",
                    help="working force amplitude [N] (default 100)")
-    p.add_argument("--start", type=finite_float, metavar="HZ",
+    p.add_argument("--start", type=ui.finite_float, metavar="HZ",
                    help="band start [Hz] (default 0.8 x the identified f1)")
-    p.add_argument("--stop", type=finite_float, metavar="HZ",
+    p.add_argument("--stop", type=ui.finite_float, metavar="HZ",
                    help="band stop [Hz] (default 1.2 x f1)")
-    p.add_argument("--speed", type=finite_float, metavar="RPM",
+    p.add_argument("--speed", type=ui.finite_float, metavar="RPM",
                    help="screw speed [r/min] (default: the identification's)")
     p.add_argument("--nominal", metavar="TOML",
                    help="the nominal drive (default: the default preset)")
@@ -37,14 +37,14 @@ def run_predict(args) -> int:
 
     from ..plotting import forecast_figure
 
-    out_dir(args.out, create=False)
+    ui.out_dir(args.out, create=False)
     try:
         ident = load_identified(args.source, args.speed)
         nominal = bsfs_jax.load_params(args.nominal) if args.nominal else None
         fc = forecast(ident, args.force, start_hz=args.start, stop_hz=args.stop,
                       nominal=nominal)
     except ForecastError as exc:
-        raise CLIError(str(exc)) from None
+        raise ui.CLIError(str(exc)) from None
     quantities = [q.as_dict() for q in fc["quantities"]]
     by_name = {q["name"]: q for q in quantities}
     data = dict(
@@ -59,10 +59,10 @@ def run_predict(args) -> int:
              "sensitive path ('path ends' where the second-order term exceeds 10 % of the "
              "half-width); dominated_by names the fitted parameter whose own variance "
              "contributes most")
-    out = out_dir(args.out)
-    write_json(out / "prediction.json", data)
+    out = ui.out_dir(args.out)
+    ui.write_json(out / "prediction.json", data)
     fig = forecast_figure(fc["curves"], fc["nominal_branch"], by_name, fc["force_n"])
-    save_figure(fig, out / "prediction.png")
+    ui.save_figure(fig, out / "prediction.png")
     print(_table(quantities))
     for h in fc["health"].values():
         print(h["line"])

@@ -2,7 +2,7 @@
 
 import time
 
-from ._common import CLIError, finite_float, out_dir, progress_enabled
+from . import _common as ui
 
 
 def register(sub) -> None:
@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--preset", default="paper-tuned", metavar="NAME",
                    help="parameter preset (default: paper-tuned; 'default' for physics.md's "
                    "values)")
-    p.add_argument("--thermal-frequency", type=finite_float, metavar="HZ",
+    p.add_argument("--thermal-frequency", type=ui.finite_float, metavar="HZ",
                    help="excitation frequency of Figs. 13-17 [Hz] (default 500)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run_reproduce)
@@ -31,17 +31,17 @@ def run_reproduce(args) -> int:
     from ..reproduce import ReproduceSettings, reproduce
 
     if args.preset not in list_presets():
-        raise CLIError(f"--preset '{args.preset}' is not a bundled preset; choose one of "
+        raise ui.CLIError(f"--preset '{args.preset}' is not a bundled preset; choose one of "
                        f"{', '.join(list_presets())}")
     kw = {"preset": args.preset}
     if args.thermal_frequency is not None:
         if not args.thermal_frequency > 0:
-            raise CLIError(f"--thermal-frequency must be positive, got {args.thermal_frequency}")
+            raise ui.CLIError(f"--thermal-frequency must be positive, got {args.thermal_frequency}")
         kw["thermal_frequency_hz"] = args.thermal_frequency
     settings = ReproduceSettings.quick_settings(**kw) if args.quick else ReproduceSettings(**kw)
-    folder = out_dir(args.out)
+    folder = ui.out_dir(args.out)
     t0 = time.perf_counter()
-    rep = reproduce(folder, settings, progress=progress_enabled(args),
+    rep = reproduce(folder, settings, progress=ui.progress_enabled(args),
                     log=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg}",
                                           flush=True))
     counts = {}

@@ -6,20 +6,7 @@ import time
 import numpy as np
 
 from .._numerics import half_range
-from ._common import (
-    CLIError,
-    add_params_args,
-    count,
-    finite_float,
-    load_params_from_args,
-    out_dir,
-    positive_float,
-    progress_enabled,
-    save_figure,
-    tolerance,
-    warn_implausible_excitation,
-    write_json,
-)
+from . import _common as ui
 
 #: Most rows `simulate` writes to timeseries.csv (about 1.7 GB of text).
 MAX_ROWS = 10**7
@@ -29,28 +16,28 @@ def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate the response to a harmonic force on the nut",
                        description="Simulate Eq. 31 under P sin(2 pi f t) on the nut; write "
                        "summary.json, timeseries.csv and response.png.")
-    p.add_argument("--frequency", type=finite_float, required=True, metavar="HZ",
+    p.add_argument("--frequency", type=ui.finite_float, required=True, metavar="HZ",
                    help="excitation frequency [Hz]")
-    p.add_argument("--force", type=finite_float, required=True, metavar="N",
+    p.add_argument("--force", type=ui.finite_float, required=True, metavar="N",
                    help="force amplitude [N]")
-    p.add_argument("--speed", type=finite_float, metavar="RPM",
+    p.add_argument("--speed", type=ui.finite_float, metavar="RPM",
                    help="screw speed [r/min] (thermal chain)")
     p.add_argument("--no-thermal", action="store_true", help="switch thermal deformation off")
-    add_params_args(p)
-    p.add_argument("--periods", type=count(2, 10**6), default=50,
+    ui.add_params_args(p)
+    p.add_argument("--periods", type=ui.count(2, 10**6), default=50,
                    help="saved steady-state periods (50)")
     p.add_argument("--verify", action="store_true",
                    help="verify the steady state: Newton (shooting) from the final state finds "
                    "the periodic orbit and its Floquet multipliers, else the run is continued "
                    "until a verified label or 'unresolved' (adds a compile of ~30 s)")
-    p.add_argument("--transient", type=count(0, 10**7), default=200,
+    p.add_argument("--transient", type=ui.count(0, 10**7), default=200,
                    help="discarded periods (200)")
-    p.add_argument("--samples-per-period", type=count(8, 10**4), default=64,
+    p.add_argument("--samples-per-period", type=ui.count(8, 10**4), default=64,
                    help="output points per period (64)")
-    p.add_argument("--rtol", type=tolerance, default=1e-8, help="relative tolerance (1e-8)")
-    p.add_argument("--atol", type=positive_float, default=1e-12,
+    p.add_argument("--rtol", type=ui.tolerance, default=1e-8, help="relative tolerance (1e-8)")
+    p.add_argument("--atol", type=ui.positive_float, default=1e-12,
                    help="absolute tolerance [SI] (1e-12)")
-    p.add_argument("--max-steps", type=count(1, 10**10), default=4_000_000)
+    p.add_argument("--max-steps", type=ui.count(1, 10**10), default=4_000_000)
     p.add_argument("--solver", default="dopri5-fused",
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"),
                    help="dopri5-fused (default: fast forward-only loop) or a diffrax solver: "
@@ -61,15 +48,15 @@ def register(sub) -> None:
     p.set_defaults(func=run_simulate)
 
     q = sub.add_parser("params", help="print a complete TOML parameter file")
-    add_params_args(q)
+    ui.add_params_args(q)
     q.add_argument("--list", action="store_true", help="list the bundled presets")
     q.set_defaults(func=run_params)
 
     m = sub.add_parser("modes", help="natural frequencies and mode shapes about equilibrium")
-    add_params_args(m)
-    m.add_argument("--speed", type=finite_float, metavar="RPM")
+    ui.add_params_args(m)
+    m.add_argument("--speed", type=ui.finite_float, metavar="RPM")
     m.add_argument("--no-thermal", action="store_true")
-    m.add_argument("--static-force", type=finite_float, default=0.0, metavar="N",
+    m.add_argument("--static-force", type=ui.finite_float, default=0.0, metavar="N",
                    help="constant axial force on the nut for the equilibrium [N]")
     m.add_argument("--json", action="store_true", help="print JSON instead of a table")
     m.set_defaults(func=run_modes)
@@ -123,17 +110,17 @@ def run_simulate(args) -> int:
     from ..plotting import response_figure, trajectory_spectrum
 
     if not args.frequency > 0:
-        raise CLIError(f"--frequency must be positive, got {args.frequency}")
+        raise ui.CLIError(f"--frequency must be positive, got {args.frequency}")
     if not args.force >= 0:
-        raise CLIError(f"--force must be >= 0, got {args.force}")
+        raise ui.CLIError(f"--force must be >= 0, got {args.force}")
     rows = (args.periods + 1) * args.samples_per_period
     if rows > MAX_ROWS:
-        raise CLIError(f"--periods {args.periods} x --samples-per-period "
+        raise ui.CLIError(f"--periods {args.periods} x --samples-per-period "
                        f"{args.samples_per_period} would write {rows:,} rows to timeseries.csv "
                        f"(more than {MAX_ROWS:,}); lower one of them")
-    params = _apply_common(load_params_from_args(args), args)
-    warn_implausible_excitation(forces=[args.force], frequencies=[args.frequency])
-    folder = out_dir(args.out)
+    params = _apply_common(ui.load_params_from_args(args), args)
+    ui.warn_implausible_excitation(forces=[args.force], frequencies=[args.frequency])
+    folder = ui.out_dir(args.out)
     started = time.perf_counter()
     system, md = _report_fn()(params, 0.0)
     print(f"natural frequencies: {', '.join(f'{f:.1f}' for f in np.asarray(md.frequencies_hz))} Hz")
@@ -143,7 +130,7 @@ def run_simulate(args) -> int:
                     periods=args.periods, transient_periods=args.transient,
                     samples_per_period=args.samples_per_period, rtol=args.rtol, atol=args.atol,
                     max_steps=args.max_steps, solver=args.solver,
-                    progress=progress_enabled(args) and args.solver != "dopri5-fused")
+                    progress=ui.progress_enabled(args) and args.solver != "dopri5-fused")
     t = np.asarray(traj.t)
     x = np.asarray(traj.displacement)
     v = np.asarray(traj.velocity)
@@ -205,10 +192,10 @@ def run_simulate(args) -> int:
     fig = response_figure(traj, title=f"BSFS response: {args.frequency:g} Hz, {args.force:g} N, "
                           f"{float(params.thermal.speed_rpm):g} r/min, thermal "
                           f"{'on' if params.thermal.enabled else 'off'}")
-    save_figure(fig, folder / "response.png")
+    ui.save_figure(fig, folder / "response.png")
     summary["steady_state"] = _steady_state(args, params, traj, amp, x, v)
     summary["runtime_s"] = time.perf_counter() - started
-    write_json(folder / "summary.json", summary)
+    ui.write_json(folder / "summary.json", summary)
     print(f"amplitude of x_n: {amp[2] * 1e6:.3f} um (half peak-to-peak); "
           f"nut offset {summary['nut_offset_um']:.3f} um, bearing offset "
           f"{summary['bearing_offset_um']:.3f} um; {traj.num_steps} steps")
@@ -258,7 +245,7 @@ def run_params(args) -> int:
         for name in list_presets():
             print(f"{name:18s} {preset_description(name)}")
         return 0
-    params = load_params_from_args(args)
+    params = ui.load_params_from_args(args)
     source = args.params or f"preset '{args.preset or 'default'}'"
     print(params_to_toml(params, header=f"bsfs parameter file (from {source}).\n"
                          "Units are in the key names; see physics.md section 2."), end="")
@@ -266,7 +253,7 @@ def run_params(args) -> int:
 
 
 def run_modes(args) -> int:
-    params = _apply_common(load_params_from_args(args), args)
+    params = _apply_common(ui.load_params_from_args(args), args)
     system, md = _report_fn()(params, args.static_force)
     f = np.asarray(md.frequencies_hz)
     z = np.asarray(md.damping_ratios)

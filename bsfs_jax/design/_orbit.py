@@ -36,10 +36,11 @@ from ..solvers import (
     Shooting,
     SolverError,
     continue_orbits,
+    family_amplitudes,
+    family_residual,
     integrate,
     periodic_orbit,
 )
-from ..solvers._kernel import family_amplitudes, family_residual
 
 
 @dataclasses.dataclass(frozen=True)

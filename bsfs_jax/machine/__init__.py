@@ -16,6 +16,7 @@ from ._equilibrium import equilibrium as equilibrium
 from ._equilibrium import linear_frf as linear_frf
 from ._equilibrium import linearise as linearise
 from ._equilibrium import modes as modes
+from ._equilibrium import tangent_matrices as tangent_matrices
 from ._families import BSFS_SCALE as BSFS_SCALE
 from ._families import FORCE as FORCE
 from ._families import FREQUENCY as FREQUENCY

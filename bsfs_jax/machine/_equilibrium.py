@@ -108,16 +108,32 @@ class Modes(eqx.Module):
         return 1.0 / jnp.linalg.inv(self.stiffness)[2, 2]
 
 
+def tangent_matrices(model, x=None, v=None):
+    """(K, C, m): the restoring forces' tangent stiffness dF/dx and damping dF/dv at the
+    state (x, v) (default: x = 0, v = 0), and the masses m (vector) [N/m, N s/m, kg].
+
+    The one linearisation of the model: `linearise` takes it at the static equilibrium;
+    identification's receptance and harmonic-balance correction at x = 0 (the unforced
+    equilibrium: both halves of each preloaded pair carry the same thermal offset, so
+    F(0) = 0). Traceable; no Newton solve.
+    """
+    system = as_system(model)
+    x = jnp.zeros(3) if x is None else jnp.asarray(x, dtype=float)
+    v = jnp.zeros(3) if v is None else jnp.asarray(v, dtype=float)
+    k = jax.jacfwd(lambda xx: restoring_forces(system, xx, v))(x)
+    c = jax.jacfwd(lambda vv: restoring_forces(system, x, vv))(v)
+    return k, c, system.mass
+
+
 def linearise(model, static_force_n=0.0, *, throw: bool = True):
-    """(K, C, M, x_eq): tangent stiffness and damping matrices about the equilibrium.
+    """(K, C, M, x_eq): tangent stiffness and damping matrices about the equilibrium
+    (`tangent_matrices` there; M is the vector of masses).
 
     `throw` as in `equilibrium`.
     """
     system = as_system(model)
     x_eq = equilibrium(system, static_force_n, throw=throw)
-    k = jax.jacfwd(lambda x: restoring_forces(system, x, jnp.zeros(3)))(x_eq)
-    c = jax.jacfwd(lambda v: restoring_forces(system, x_eq, v))(jnp.zeros(3))
-    return k, c, system.mass, x_eq
+    return (*tangent_matrices(system, x_eq), x_eq)
 
 
 def modes(model, static_force_n=0.0, *, throw: bool = True) -> Modes:

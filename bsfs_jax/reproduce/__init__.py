@@ -9,6 +9,6 @@ from ._claims import CLAIM_KEYS as CLAIM_KEYS
 from ._claims import CLAIMS as CLAIMS
 from ._claims import Claim as Claim
 from ._report import FIGURE_FILES as FIGURE_FILES
-from ._report import Reproduction as Reproduction
 from ._report import reproduce as reproduce
 from ._run import ReproduceSettings as ReproduceSettings
+from ._run import Reproduction as Reproduction

@@ -5,15 +5,11 @@ import datetime
 import json
 import platform
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._judge import UNRESOLVED_MAX, _fmt_hz, describe_candidates
-from ._run import MOTION_CASES
-
-if TYPE_CHECKING:
-    from ._report import Reproduction
+from ._run import MOTION_CASES, Reproduction
 
 
 def _um(x) -> str:
@@ -100,7 +96,7 @@ def _tuning_lines(params, default) -> list:
     return lines
 
 
-def render_markdown(rep: "Reproduction", params, default) -> str:
+def render_markdown(rep: Reproduction, params, default) -> str:
     s, n = rep.settings, rep.numbers
     runs = n["thermal"]["runs"]
     L = []

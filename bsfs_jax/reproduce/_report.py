@@ -36,6 +36,7 @@ from ._run import (
     PRELOADS_N,
     SPEEDS_RPM,
     ReproduceSettings,
+    Reproduction,
     Timer,
     diameter_experiments,
     exciter_experiments,
@@ -63,22 +64,6 @@ FIGURE_FILES = {
     "fig26": "fig26_frc_bearing_contact_angle.png",
     "fig27": "fig27_frc_nut_contact_angle.png",
 }
-
-
-@dataclasses.dataclass
-class Reproduction:
-    """What `reproduce` produced: the claims table rows, numbers, figure paths, timings."""
-
-    out_dir: Path
-    rows: list
-    numbers: dict
-    figures: dict
-    timings: dict
-    settings: ReproduceSettings
-
-    @property
-    def report_path(self) -> Path:
-        return self.out_dir / "REPRODUCTION.md"
 
 
 def _save(fig, path: Path) -> None:

@@ -17,6 +17,7 @@ verified labels only.
 
 import dataclasses
 import time
+from pathlib import Path
 
 import equinox as eqx
 import numpy as np
@@ -29,9 +30,9 @@ from ..analysis import (
     bsfs_problem,
     classify_motion,
     largest_lyapunov,
+    slowest_decay_rate,
     verify_points,
 )
-from ..analysis._verify import slowest_decay_rate
 from ..machine import modes, simulate
 from ..model import Sinusoid, build_system, vector_field
 from ..params import preset as load_preset
@@ -129,6 +130,22 @@ class ReproduceSettings:
                               max_blocks=int(self.verify_max_blocks),
                               min_blocks=int(self.verify_min_blocks),
                               align_periods=min(16, int(self.verify_block_periods) // 8))
+
+
+@dataclasses.dataclass
+class Reproduction:
+    """What `reproduce` produced: the claims table rows, numbers, figure paths, timings."""
+
+    out_dir: Path
+    rows: list
+    numbers: dict
+    figures: dict
+    timings: dict
+    settings: ReproduceSettings
+
+    @property
+    def report_path(self) -> Path:
+        return self.out_dir / "REPRODUCTION.md"
 
 
 def _steady(system, frequency_hz, force_n, s: ReproduceSettings, *, periods=None,

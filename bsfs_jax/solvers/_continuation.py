@@ -223,8 +223,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
             "corrector_traces": TRACE_COUNTS["corrector"] - traces_before,
             "p_scale": p_scale, "scale": np.asarray(kernel.scale).tolist(),
             "method": kernel.method.name, "harmonic_upgrades": upgrades,
-            "harmonics": getattr(kernel.method, "harmonics", None),
-            "segments": getattr(kernel.method, "segments", None)}
+            **kernel.method.discretisation()}
     return points_to_branch(points, arclength, bifurcations, peaks, kernel, n_periods, info)
 
 

@@ -36,12 +36,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._method import AbstractOrbitMethod
+from ._results import RESULTS
 from ._shooting import SHOOTING_SETTINGS, Scaled, flow
 
 _MAGNUS_STEPS = 256  # Runge-Kutta steps per orbit period for the monodromy
 
 
-class HarmonicBalance(eqx.Module):
+class HarmonicBalance(AbstractOrbitMethod):
     """Harmonic balance with `harmonics` harmonics of the orbit frequency (AFT, `time_samples`
     time points per orbit period; default 4 * harmonics, at least 16).
 
@@ -71,6 +73,27 @@ class HarmonicBalance(eqx.Module):
 
     def with_harmonics(self, h: int) -> "HarmonicBalance":
         return HarmonicBalance(int(h), None, self.max_harmonics, self.error_tol)
+
+    # -- what the engine asks of every method (`AbstractOrbitMethod`) ----------------------
+    def flag_truncation(self, result, error):
+        return RESULTS.where((result == RESULTS.successful) & ~(error <= self.error_tol),
+                             RESULTS.harmonics_insufficient, result)
+
+    def accurate_tol(self) -> float | None:
+        return self.error_tol
+
+    def refine(self, orbit, solve, state_size: int):
+        """Double the harmonic count while the error estimate is above `error_tol`, up to
+        `max_harmonics`, each time from the last orbit's coefficients."""
+        while (not bool(orbit.converged)) and orbit.result == RESULTS.harmonics_insufficient \
+                and 2 * orbit.method.harmonics <= self.max_harmonics:
+            bigger = orbit.method.with_harmonics(2 * orbit.method.harmonics)
+            orbit = solve(bigger, bigger.from_coefficients(orbit.method, orbit.unknowns,
+                                                             state_size))
+        return orbit
+
+    def discretisation(self) -> dict:
+        return {"harmonics": int(self.harmonics), "segments": None}
 
     # -- coefficients <-> time samples ---------------------------------------------------
     def _unpack(self, z, d):

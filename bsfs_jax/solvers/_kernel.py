@@ -11,7 +11,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._branch import HostPoint, as_host
-from ._harmonic import HarmonicBalance
 from ._newton import newton
 from ._orbit import orbit_amplitudes
 from ._results import RESULTS
@@ -119,7 +118,7 @@ class Kernel:
 
     @property
     def accurate_tol(self):
-        return self.method.error_tol if isinstance(self.method, HarmonicBalance) else None
+        return self.method.accurate_tol()
 
     def correct(self, u_pred, tangent, ds_used: float = 0.0, chord=None) -> HostPoint:
         """Correct a predicted point; `chord` is a nearby point whose Newton matrix starts
@@ -127,7 +126,7 @@ class Kernel:
         self.calls += 1
         u_pred = np.asarray(u_pred, dtype=float)
         n = u_pred.shape[0]
-        use_chord = bool(getattr(self.method, "uses_chord", False))
+        use_chord = bool(self.method.uses_chord)
         if use_chord and chord is not None and chord.lu is not None and \
                 chord.lu[0].shape[0] == n:
             lu, piv = chord.lu

@@ -154,10 +154,7 @@ def _solve_core(method, vector_field, z0, args, period, scale, n_periods, tol, m
     err = method.error_estimate(vector_field, z_star, jax.lax.stop_gradient(args),
                                 jax.lax.stop_gradient(period), n_periods, scale,
                                 sol.residual)
-    result = sol.result
-    if isinstance(method, HarmonicBalance):
-        result = RESULTS.where((result == RESULTS.successful) & ~(err <= method.error_tol),
-                               RESULTS.harmonics_insufficient, result)
+    result = method.flag_truncation(sol.result, err)
     monodromy = m_scaled * scale[:, None] / scale[None, :]
     return PeriodicOrbit(state, period, _sorted_eigvals(m_scaled), monodromy, sol.residual,
                          err, result, z, scale, sol.steps, method, n_periods)
@@ -224,12 +221,8 @@ def periodic_orbit(vector_field, y_guess, args, period, *, method=None,
     else:
         z0 = jnp.asarray(unknowns, dtype=float)
     orbit = solve(method, z0)
-    if isinstance(method, HarmonicBalance) and concrete:
-        while (not bool(orbit.converged)) and orbit.result == RESULTS.harmonics_insufficient \
-                and 2 * orbit.method.harmonics <= method.max_harmonics:
-            bigger = orbit.method.with_harmonics(2 * orbit.method.harmonics)
-            orbit = solve(bigger, bigger.from_coefficients(orbit.method, orbit.unknowns,
-                                                             y_guess.shape[0]))
+    if concrete:
+        orbit = method.refine(orbit, solve, y_guess.shape[0])
     if throw and is_concrete(orbit.result._value) and not bool(orbit.converged):
         raise SolverError(
             f"periodic orbit ({method.name}) not found: {RESULTS[orbit.result]} (scaled "

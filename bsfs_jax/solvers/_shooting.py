@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from ._integrate import SolverSettings, integrate
+from ._method import AbstractOrbitMethod
 
 #: ODE settings for shooting. Newton needs a period map that is smooth well below its
 #: tolerance; an adaptive low-order solver's map jumps by about its global error when the
@@ -100,7 +101,7 @@ def variational_monodromy(vector_field, y0, args, period, n_periods: int = 1,
     return res.ys[0, d:].reshape(d, d)
 
 
-class Shooting(eqx.Module):
+class Shooting(AbstractOrbitMethod):
     """Single (`segments=1`) or multiple shooting with ODE `settings`.
 
     Pass as `method=` to `periodic_orbit` and `continue_orbits`.
@@ -177,6 +178,20 @@ class Shooting(eqx.Module):
     def error_estimate(self, vector_field, z, args, period, n_periods, scale, residual):
         """Shooting's error is the Newton residual (the ODE error is set by `settings`)."""
         return residual
+
+    def flag_truncation(self, result, error):
+        """Shooting has no truncation error of its own (the ODE error is set by
+        `settings`)."""
+        return result
+
+    def accurate_tol(self) -> float | None:
+        return None
+
+    def refine(self, orbit, solve, state_size: int):
+        return orbit
+
+    def discretisation(self) -> dict:
+        return {"harmonics": None, "segments": int(self.segments)}
 
     def trajectory(self, vector_field, z, args, period, n_periods, scale, ts,
                    ode_adjoint=None):

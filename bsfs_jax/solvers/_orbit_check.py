@@ -1,12 +1,13 @@
-"""Batched periodic-orbit checks at sampled states (the verifier's use of shooting).
+"""Batched periodic-orbit checks at sampled states: shooting with a traced period count.
 
 For each (point, n) pair, Newton's method solves Phi^{nT}(z) - z = 0 in scaled variables
-(`solvers.Scaled`) from a sampled stroboscopic state. This is single shooting like the
-orbit engine's (`solvers.periodic_orbit`), specialised for verification at every sweep
-point: n is a *traced* integer, so one compiled function serves every period
-n <= max_period and every point (vmapped), and the Newton matrix comes from the
-variational equations (`solvers._shooting._Variational`) integrated by the sweep's fast
-forward-only Dormand-Prince loop, not from forward-mode AD through diffrax (about ten
+(`Scaled`) from a sampled stroboscopic state. This is single shooting like the orbit
+engine's (`periodic_orbit` with `Shooting`: the same scaled field, the same variational
+equations), specialised for checking many sampled states at once, as the sweep verifier
+(`bsfs_jax.analysis`) does at every point: n is a *traced* integer, so one compiled
+function serves every period n <= max_period and every point (vmapped), and the Newton
+matrix comes from the variational equations (`_shooting._Variational`) integrated by the
+fast forward-only Dormand-Prince loop, not from forward-mode AD through diffrax (about ten
 times cheaper per step in a vmapped batch here). Nothing is differentiated through it.
 It returns the Floquet multipliers (eigenvalues of the monodromy matrix), the orbit's
 stroboscopic points o_1..o_max (to find the minimal period) and its samples over n T
@@ -17,8 +18,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..solvers import RESULTS, SolverSettings, integrate
-from ..solvers._shooting import Scaled, _Variational
+from ._integrate import SolverSettings, integrate
+from ._results import RESULTS
+from ._shooting import Scaled, _Variational
 
 #: Orbit settings of the verifier: Newton reaches 1e-6 (relative, scaled variables; the
 #: orbit to ~1e-6 of its amplitude, the multipliers to ~1e-6) and is cheap enough to run
@@ -126,16 +128,18 @@ def _check_batch(vector_field, setup, data, values, y_guess, scale, n, tol, max_
     return jax.vmap(one)(values, y_guess, scale, n)
 
 
-def check_orbits(problem, values, y_guess, scale, n, *, tol: float = 1e-6,
+def check_orbits(vector_field, setup, data, values, y_guess, scale, n, *, tol: float = 1e-6,
                  max_steps: int = 16, max_period: int = 16, samples_per_period: int = 32,
                  settings: SolverSettings = CHECK_SETTINGS) -> OrbitCheck:
     """Look for orbits of period n_i T from the states `y_guess[i]` at parameter values[i].
 
-    `problem` is a `SweepProblem` (its `vector_field`, `setup` and `data`); `scale` (B, d)
+    `vector_field(t, y, args)` is the system; `setup(data, value)` gives its `(args,
+    period)` at one parameter value (`data`: a pytree of arrays, traced); `scale` (B, d)
     the per-coordinate scale of the unknowns; `n` (B,) integer periods in 1..max_period.
-    Compiled once per (problem structure, max_period, samples_per_period, settings).
+    Compiled once per (vector field, setup, data structure, max_period,
+    samples_per_period, settings): values, states, scales and periods are traced.
     """
-    return _check_batch(problem.vector_field, problem.setup, problem.data,
+    return _check_batch(vector_field, setup, data,
                         jnp.asarray(values, dtype=float), jnp.asarray(y_guess, dtype=float),
                         jnp.asarray(scale, dtype=float), jnp.asarray(n, dtype=int),
                         float(tol), int(max_steps), int(max_period), int(samples_per_period),
