@@ -218,16 +218,6 @@ def _quantity(name, unit, v, ci, method, g, ident, scale, extra):
     return Quantity(name, unit, float(v) * scale, ci, method, _dominant(g, ident), extra=extra)
 
 
-def delta_interval(name, unit, value, grad, ident: Identified, method, extra=None, *,
-                   scale=1.0) -> Quantity:
-    """The delta method's interval value +- 1.96 sqrt(g^T C g), unchecked at second order
-    (the caller's `method` says so)."""
-    g = np.asarray(grad, float)
-    sd = _std(g, ident)
-    return _quantity(name, unit, value, [value - Z95 * sd, value + Z95 * sd], method, g,
-                     ident, scale, extra or {})
-
-
 def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
     """The delta interval where the quadratic model's second-order std
     sqrt(tr((H C)^2) / 2) is at most `SECOND_ORDER_TOL` of the linear std; else the 2.5-97.5 %
@@ -264,13 +254,13 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra):
 
 
 def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
-                 method="delta") -> Quantity:
+                 method="delta", quadratic="quadratic (exact Hessian)", extra=None) -> Quantity:
     """A cheap quantity (modal, linearised lift-off) with its exact gradient and Hessian,
     checked at second order (`_checked`, method "quadratic (exact Hessian)" where
     doubtful; draws of the model itself, tried first, twice left the process waiting
     forever inside XLA on the 2-core machine)."""
     return _checked(name, unit, value, np.asarray(grad, float), np.asarray(hess, float),
-                    ident, scale, method, "quadratic (exact Hessian)", {})
+                    ident, scale, method, quadratic, dict(extra or {}))
 
 
 def probe_steps(ident: Identified, k: int = 3) -> np.ndarray:

@@ -224,6 +224,33 @@ def health(quantities: dict, force: float) -> dict:
     return out
 
 
+def _band(ident: Identified, settings, start_hz, stop_hz):
+    """(modal quantities, f1, start, stop): the band around the identified resonance
+    (`settings.frc_band` times f1 where not given), refused where it holds no resonance."""
+    modal, f1 = _modal(ident)
+    start = settings.frc_band[0] * f1 if start_hz is None else float(start_hz)
+    stop = settings.frc_band[1] * f1 if stop_hz is None else float(stop_hz)
+    if not (0 < start < f1 < stop):
+        raise ForecastError(f"the band {start:g}-{stop:g} Hz holds no resonance: the "
+                            f"identified first natural frequency is {f1:.1f} Hz; choose "
+                            "--start and --stop around it")
+    return modal, f1, start, stop
+
+
+def forecast_liftoff(ident: Identified, *, start_hz=None, stop_hz=None,
+                     settings=None) -> dict:
+    """The lift-off part of `forecast` alone (the same computation, on the same band):
+    {"quantities": [liftoff_force_n], "per_joint_liftoff": [...]}. For studies of the
+    lift-off's interval that need not continue the FRC."""
+    from bsfs_jax.design import OrbitSettings
+
+    settings = OrbitSettings() if settings is None else settings
+    _, _, start, stop = _band(ident, settings, start_hz, stop_hz)
+    lift, per_joint = nonlinear_liftoff(ident, *linear_liftoff(ident, start, stop), start,
+                                         stop)
+    return dict(quantities=[lift], per_joint_liftoff=per_joint)
+
+
 def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
              nominal=None, settings=None, nominal_curve: bool = True) -> dict:
     """The forecast (`prediction.json`'s content less the file fields): quantities, health,
@@ -241,16 +268,10 @@ def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
                             f"{top:g}] N ({MAX_FORCE_PRELOADS:g} x the larger preload); "
                             "choose a working force in that range")
     settings = OrbitSettings() if settings is None else settings
-    modal, f1 = _modal(ident)
-    start = settings.frc_band[0] * f1 if start_hz is None else float(start_hz)
-    stop = settings.frc_band[1] * f1 if stop_hz is None else float(stop_hz)
-    if not (0 < start < f1 < stop):
-        raise ForecastError(f"the band {start:g}-{stop:g} Hz holds no resonance: the "
-                            f"identified first natural frequency is {f1:.1f} Hz; choose "
-                            "--start and --stop around it")
+    modal, f1, start, stop = _band(ident, settings, start_hz, stop_hz)
     zeta = next(q.value for q in modal if q.name == "damping_ratio_1")
     frc, curves = _frc_quantities(ident, force, start, stop, settings, zeta)
-    lift, per_joint = nonlinear_liftoff(ident, linear_liftoff(ident, start, stop), start,
+    lift, per_joint = nonlinear_liftoff(ident, *linear_liftoff(ident, start, stop), start,
                                          stop)
     pre = _preloads(ident, nominal)
     quantities = modal + frc + [lift] + pre

@@ -9,7 +9,7 @@ import numpy as np
 
 import bsfs_jax
 
-from ._forecast import ForecastError, delta_interval, from_hessian, locate_peak, value_jac_hess
+from ._forecast import ForecastError, from_hessian, locate_peak, value_jac_hess
 
 GRID = 2001  # frequencies over the band where each joint's receptance peak is sought
 JOINTS = ("bearing", "nut")
@@ -75,7 +75,9 @@ def linear_liftoff(ident, start, stop):
     """Per joint (`JOINTS` order) the smallest force amplitude at which its linearised
     relative displacement reaches its contact window anywhere in the band (the frequency
     of the largest joint receptance is located without gradient, the envelope theorem
-    makes that exact for the linearised value), and the frequencies there."""
+    makes that exact for the linearised value), and the frequencies there; with them
+    their (values, Jacobians, Hessians) in theta, for the nonlinear value's second-order
+    check."""
     import jax.numpy as jnp
 
     coords, theta = ident.coordinates, jnp.asarray(ident.theta, float)
@@ -99,7 +101,7 @@ def linear_liftoff(ident, start, stop):
         q.extra.update(frequency_hz=f, note="the force amplitude at which the linearised "
                        "joint displacement reaches the end of its contact window at the "
                        "joint's resonance")
-    return per
+    return per, (values, jac, hess)
 
 
 # The lift-off search on the nonlinear orbits: harmonic balance at this tolerance (the
@@ -131,13 +133,32 @@ def joint_min_deformation(params, force, hint, joint):
     return deformations[jnp.argmin(jax.lax.stop_gradient(deformations))]
 
 
-def nonlinear_liftoff(ident, per_joint, start, stop):
+def carried_hessian(value, grad, lin_value, lin_grad, lin_hess):
+    """The nonlinear lift-off force's Hessian in theta, from the linearised one's.
+
+    Write F*(theta) = r(theta) F_lin(theta): the orbits open a few per cent below the
+    linearised joints (r about 0.97 on the worn drive), and r varies far more slowly than
+    F_lin, which carries the damping and the preloads. With r = F* / F_lin and its exact
+    gradient g_r = (g* - r g_lin) / F_lin, the product rule gives
+    H* = r H_lin + g_r g_lin^T + g_lin g_r^T + F_lin H_r; the last term, r's own curvature,
+    is the one left out.
+    """
+    r = value / lin_value
+    g_r = (np.asarray(grad, float) - r * np.asarray(lin_grad, float)) / lin_value
+    g_lin = np.asarray(lin_grad, float)
+    return r * np.asarray(lin_hess, float) + np.outer(g_r, g_lin) + np.outer(g_lin, g_r)
+
+
+def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
     """`liftoff_force_n`, and `per_joint` with its first joint's entry on the nonlinear
     orbits: the force F* at which that joint's smallest contact deformation at the FRC
     peak reaches zero (secant from the linearised value), with dF*/dtheta = -m_theta / m_F
     (implicit, reverse mode). On the bundled worn drive the linearised bearing value was
     61.5 N (95 % interval 61.3-62.0 N) and the orbits open at 59.9 N: the linearised
-    interval missed it. Where the search fails the linearised value is kept and says so.
+    interval missed it. Its interval is checked at second order like the other quantities
+    (`from_hessian`), with the Hessian carried over from the linearised value's
+    (`carried_hessian`; `derivs`: `linear_liftoff`'s values, Jacobians and Hessians).
+    Where the search fails the linearised value is kept and says so.
     The other joint stays linearised (it opens after the first, on orbits that have
     already lost contact)."""
     import jax.numpy as jnp
@@ -203,13 +224,18 @@ def nonlinear_liftoff(ident, per_joint, start, stop):
                 lin.extra["nonlinear"] = ("the lift-off force's gradient failed on the "
                                           "nonlinear orbits: linearised value")
                 return total(lin), per
-    per[first] = delta_interval(
-        lin.name, "N", f1, grad, ident,
-        "delta (nonlinear orbit at the FRC peak)", dict(
+    values, jac, hess = derivs
+    per[first] = from_hessian(
+        lin.name, "N", f1, grad, carried_hessian(f1, grad, values[first], jac[first],
+                                                 hess[first]), ident,
+        method="delta (nonlinear orbit at the FRC peak)",
+        quadratic="quadratic (nonlinear orbit; Hessian carried from the linearised joints)",
+        extra=dict(
             frequency_hz=float(hint.frequency_hz), linearised_n=lin.value, gradient=how,
             note="the force at which the first joint to open loses contact on the periodic "
-                 "orbit at the FRC peak (harmonic balance); its interval is the delta "
-                 "method's, not checked at second order"))
+                 "orbit at the FRC peak (harmonic balance); its second-order check uses "
+                 "the linearised lift-off's exact Hessian carried to the orbits "
+                 "(F* = r F_lin, r's own curvature left out)"))
     for i, q in enumerate(per):
         if i != first:
             q.extra["note"] = (f"linearised: the {joint} opens first, at {f1:.1f} N; beyond it "

@@ -13,6 +13,13 @@ run on the truth (worn.toml) itself, the preloads read from it.
     python scripts/forecast_coverage.py --quick         # 4 replicates, a check
     python scripts/forecast_coverage.py --workers 2     # two worker processes at a time
     python scripts/forecast_coverage.py --report-only   # tables from the files
+    python scripts/forecast_coverage.py --part liftoff  # the lift-off alone (~15 s each)
+
+`--part liftoff` runs the same replicates (same seeds, so the same identification) through
+the lift-off alone (`identification.forecast_liftoff`, the computation `forecast` does on
+the same band); its rows (<force>N.liftoff.jsonl) replace the whole forecast's lift-off
+quantities in the summary, so a change to the lift-off is checked without continuing
+every FRC again.
 
 Every replicate is one JSON line in out/forecast-coverage/<force>N.jsonl (per worker
 .w<i>.jsonl; flushed and fsynced); a rerun skips the replicates already there, so an
@@ -38,6 +45,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from bsfs_jax.cli._common import setup_jax, write_json  # noqa: E402
+from bsfs_jax.files import write_text_atomic  # noqa: E402
 
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
@@ -108,7 +116,8 @@ def row_of(replicate, fc, truth: dict, seconds: dict, res) -> dict:
                        else (q.extra["plug_in"] - t) / std))
     return dict(replicate=replicate, seeds=record_seeds(replicate),
                 converged=bool(res.fit.converged), quantities=quantities,
-                health={j: h["line"] for j, h in fc["health"].items()}, seconds=seconds)
+                health={j: h["line"] for j, h in fc.get("health", {}).items()},
+                seconds=seconds)
 
 
 # ----------------------------------------------------------------------------- summary
@@ -116,7 +125,8 @@ def row_of(replicate, fc, truth: dict, seconds: dict, res) -> dict:
 
 def summarize(rows: list[dict]) -> dict:
     names = list(rows[0]["quantities"])
-    out = dict(replicates=len(rows), quantities={})
+    out = dict(replicates=len(rows), quantities={},
+               liftoff_pass=sum(bool(r.get("liftoff_pass")) for r in rows))
     for n in names:
         qs = [r["quantities"].get(n) for r in rows]
         judged = [q for q in qs if q is not None and q["covers"] is not None]
@@ -153,7 +163,9 @@ def summarize(rows: list[dict]) -> dict:
 
 def markdown(s: dict, force: float) -> str:
     lines = [f"Forecast at {force:g} N; {s['replicates']} replicates of the preload-loss "
-             "test (worn.toml), each identified (PRELOAD_FIT) and predicted.", "",
+             "test (worn.toml), each identified (PRELOAD_FIT) and predicted"
+             + (f"; the lift-off quantities of {s['liftoff_pass']} of them from the lift-off "
+                "pass (`--part liftoff`)" if s.get("liftoff_pass") else "") + ".", "",
              "| quantity | truth | coverage | 95 % CI of coverage | mean z | std z | "
              "mean z of the plug-in value | mean rel. error | methods |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -180,11 +192,35 @@ def markdown(s: dict, force: float) -> str:
 # ----------------------------------------------------------------------------- main
 
 
-def files(force: float) -> list[Path]:
-    return sorted(OUT.glob(f"{force:g}N*.jsonl"))
+def files(force: float, part: str = "all") -> list[Path]:
+    """The rows of one part: the whole forecast (`all`: <force>N.jsonl, .w<i>.jsonl) or
+    the lift-off pass (`liftoff`: <force>N.liftoff.jsonl, .liftoff.w<i>.jsonl)."""
+    if part == "liftoff":
+        return sorted(OUT.glob(f"{force:g}N.liftoff*.jsonl"))
+    return sorted(p for p in OUT.glob(f"{force:g}N*.jsonl") if ".liftoff" not in p.name)
 
 
-def run(todo: list[int], path: Path, force: float) -> None:
+def row_path(force: float, part: str, worker: int | None = None) -> Path:
+    tag = "" if part == "all" else f".{part}"
+    return OUT / (f"{force:g}N{tag}.jsonl" if worker is None else
+                  f"{force:g}N{tag}.w{worker}.jsonl")
+
+
+def overlay(rows: list[dict], lift_rows: list[dict]) -> list[dict]:
+    """The whole forecast's rows with their lift-off quantities replaced by the lift-off
+    pass's, replicate by replicate (the same seeds, so the same identification)."""
+    by_rep = {r["replicate"]: r for r in lift_rows}
+    out = []
+    for r in rows:
+        lr = by_rep.get(r["replicate"])
+        if lr is not None:
+            r = dict(r, quantities={**r["quantities"], **lr["quantities"]},
+                     liftoff_pass=True)
+        out.append(r)
+    return out
+
+
+def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
     truth, prior = truth_params(), bsfs_jax.preset()
     truth_file = OUT / f"{force:g}N_truth.json"
     t_start = time.perf_counter()
@@ -199,7 +235,8 @@ def run(todo: list[int], path: Path, force: float) -> None:
             if not truth_file.exists():  # once per study (the first worker to get here)
                 write_json(truth_file, truth_values(ident, truth, force))
             t_truth = time.perf_counter()
-            fc = idn.forecast(ident, force, nominal_curve=False)
+            fc = (idn.forecast(ident, force, nominal_curve=False) if part == "all"
+                  else idn.forecast_liftoff(ident))
         t3 = time.perf_counter()
         tv = json.loads(truth_file.read_text())
         row = row_of(k, fc, tv, dict(synth=t1 - t0, identify=t2 - t1,
@@ -221,43 +258,54 @@ def main(argv=None) -> int:
                     help="worker processes at a time (each runs at most 10 replicates)")
     ap.add_argument("--shard", default=None, help=argparse.SUPPRESS)  # "i/n" (a worker)
     ap.add_argument("--report-only", action="store_true", help="summarise the files")
+    ap.add_argument("--part", choices=("all", "liftoff"), default="all",
+                    help="the whole forecast, or the lift-off alone (its rows then replace "
+                         "the whole forecast's lift-off quantities in the summary)")
     args = ap.parse_args(argv)
     n = 4 if args.quick else args.replicates
+    part = args.part
     OUT.mkdir(parents=True, exist_ok=True)
-    rows = [r for f in files(args.force) for r in read_done(f)]
+    rows = [r for f in files(args.force, part) for r in read_done(f)]
     done = {r["replicate"] for r in rows}
     todo = [k for k in range(n) if k not in done]
     if args.shard:
         i, m = (int(x) for x in args.shard.split("/"))
-        run(todo[i::m][:PER_PROCESS], OUT / f"{args.force:g}N.w{i}.jsonl", args.force)
+        run(todo[i::m][:PER_PROCESS], row_path(args.force, part, i), args.force, part)
         return 0
-    print(f"{len(done)} replicate(s) done, {len(todo)} to run at {args.force:g} N", flush=True)
+    print(f"{len(done)} replicate(s) done, {len(todo)} to run at {args.force:g} N "
+          f"(part: {part})", flush=True)
     if todo and not args.report_only:
         if not (OUT / f"{args.force:g}N_truth.json").exists():
-            # The truth's values first, so the workers do not both compute them.
-            run(todo[:1], OUT / f"{args.force:g}N.jsonl", args.force)
+            # The truth's values first (the whole forecast at the truth, in `run`), so the
+            # workers do not both compute them.
+            run(todo[:1], row_path(args.force, part), args.force, part)
         # Workers of at most PER_PROCESS replicates each, then fresh processes: every
         # continuation leaves compiled programs behind, and a process that ran 13
         # forecasts beside another ran out of the machine's 24 GB.
         while True:
-            done = {r["replicate"] for f in files(args.force) for r in read_done(f)}
+            done = {r["replicate"] for f in files(args.force, part) for r in read_done(f)}
             if all(k in done for k in range(n)):
                 break
             procs = [subprocess.Popen([sys.executable, __file__, "--replicates", str(n),
-                                       "--force", str(args.force), "--shard",
+                                       "--force", str(args.force), "--part", part, "--shard",
                                        f"{i}/{args.workers}"]) for i in range(args.workers)]
             if any(p.wait() for p in procs):
                 print("a worker failed; rerun to resume", file=sys.stderr)
                 return 1
-    rows = sorted({r["replicate"]: r for f in files(args.force) for r in read_done(f)
-                   if r["replicate"] < n}.values(), key=lambda r: r["replicate"])
+
+    def read(which):
+        return sorted({r["replicate"]: r for f in files(args.force, which)
+                       for r in read_done(f) if r["replicate"] < n}.values(),
+                      key=lambda r: r["replicate"])
+
+    rows = overlay(read("all"), read("liftoff"))
     if not rows:
         return 0
     s = summarize(rows)
     md = markdown(s, args.force)
     print(md)
-    Path(OUT / f"{args.force:g}N_summary.json").write_text(json.dumps(s, indent=1) + "\n")
-    Path(OUT / f"{args.force:g}N_summary.md").write_text(md)
+    write_json(OUT / f"{args.force:g}N_summary.json", s)
+    write_text_atomic(OUT / f"{args.force:g}N_summary.md", md)
     return 0
 
 

@@ -1,6 +1,7 @@
 """`bsfs predict`: the forecast of the bundled worn drive (data/worn.toml), its intervals
 against a Monte Carlo of the same covariance and against the truth, and its refusals."""
 
+import dataclasses
 import json
 import shutil
 
@@ -176,12 +177,15 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     ident_dir, _, data = folders
     ident = load_identified(ident_dir)
     q = {x["name"]: x for x in data["quantities"]}["liftoff_force_n"]
-    assert q["method"] == "delta (nonlinear orbit at the FRC peak)"
-    assert q["joint"] == "bearing" and q["value"] < q["linearised_n"]
+    # Its second-order term is large (the dampers' combination, as for the damping ratio):
+    # the interval and the value (the draws' median) come from the quadratic model.
+    assert q["method"] == ("quadratic (nonlinear orbit; Hessian carried from the linearised "
+                           "joints)") and q["second_order"] > 0.1
+    assert q["joint"] == "bearing" and q["plug_in"] < q["linearised_n"]
     params = ident.params_at(ident.theta)
     settings = OrbitSettings(frc_method="hb", frc_tol=1e-4)
     for factor, sign in ((0.98, 1.0), (1.02, -1.0)):
-        force = factor * q["value"]
+        force = factor * q["plug_in"]
         hint, _ = locate_frc_peak(params, force, settings)
         assert sign * float(joint_min_deformation(params, force, hint, "bearing")) > 0
     # Its interval rests on the implicit gradient (not the central-difference safeguard),
@@ -190,14 +194,32 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     assert q["gradient"] == "implicit"
     from identification._liftoff import _min_deformation_program
 
-    force = q["value"]
+    force = q["plug_in"]
     hint, _ = locate_frc_peak(params, force, settings)
-    _, (_, g_f) = _min_deformation_program(ident.coordinates, jnp.asarray(ident.theta),
-                                           jnp.asarray(force), hint, "bearing")
+    _, (g_theta, g_f) = _min_deformation_program(
+        ident.coordinates, jnp.asarray(ident.theta), jnp.asarray(force), hint, "bearing")
     m = [float(joint_min_deformation(params, f, locate_frc_peak(params, f, settings)[0],
                                      "bearing")) for f in (force - 0.5, force + 0.5)]
     assert float(g_f) < 0
     assert float(g_f) == pytest.approx((m[1] - m[0]) / 1.0, rel=2e-2)
+    # The Hessian carried from the linearised lift-off (F* = r F_lin, r's curvature left
+    # out) predicts the nonlinear lift-off's second difference along the least determined
+    # direction, +-1.96 standard deviations, found by two more searches.
+    from identification import forecast_liftoff
+    from identification._forecast import probe_steps
+    from identification._liftoff import carried_hessian, linear_liftoff
+
+    start, stop = data["band_hz"]
+    _, (values, jac, hess) = linear_liftoff(ident, start, stop)
+    grad = -np.asarray(g_theta) / float(g_f)
+    h = carried_hessian(force, grad, values[0], jac[0], hess[0])
+    step = probe_steps(ident, 1)[0]
+    at = [forecast_liftoff(dataclasses.replace(ident, theta=ident.theta + sign * step),
+                           start_hz=start, stop_hz=stop)["quantities"][0]
+          for sign in (1.0, -1.0)]
+    second = sum(x.extra.get("plug_in", x.value) for x in at) - 2 * force
+    assert second == pytest.approx(step @ h @ step, rel=0.1)
+    assert abs(second) > 0.1 * q["std"]  # a curvature that matters
 
 
 def _refused(args, capsys, out):
