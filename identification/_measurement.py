@@ -40,11 +40,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bsfs_jax.machine import tangent_matrices
-from bsfs_jax.model import restoring_forces
 
 from ._records import Record
 
@@ -216,16 +216,16 @@ def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLI
                         steps: int = 1):
     """Correction to `linear_acceleration` [m/s^2] for the joints' nonlinearity (complex (H,)).
 
-    Harmonic balance on the harmonics k = 1..H of the force, solved by the chord method
-    from the linear steady state: the restoring forces are evaluated along the current
-    response x(t) = Re(sum_k X_k e^{i k w t}) at `samples` points per period; their k-th
-    Fourier coefficient minus the linear part (K + i k w C) X_k is the residual R_k, and
-    each step corrects X_k by -(K - (k w)^2 M + i k w C)^(-1) R_k. The result is -(k w)^2
-    times the total correction of the nut. `steps=1` is first order in the nonlinearity
-    (the "first-order" measurement model, and the predicted error of the linear one); the
-    difference between 2 and 1 steps estimates the first-order model's own error. The mean
-    shift and the harmonics above H are left out: for strong nonlinearity use the periodic
-    orbit (`nonlinear_acceleration`).
+    Harmonic balance on the harmonics k = 1..H of the force and the mean, solved by the
+    chord method from the linear steady state (`chord_corrections`, on the orbit engine's
+    AFT residual): the restoring forces are evaluated along the current response at
+    `samples` points per period, and each step corrects the harmonics by the linearised
+    system's dynamic stiffness, on harmonic k (K - (k w)^2 M + i k w C)^(-1), and the mean
+    by K^(-1). The result is -(k w)^2 times the total correction of the nut's harmonics.
+    `steps=1` is first order in the nonlinearity (the "first-order" measurement model, and
+    the predicted error of the linear one); the difference between 2 and 1 steps estimates
+    the first-order model's own error. The harmonics above H are left out: for strong
+    nonlinearity use the periodic orbit (`nonlinear_acceleration`).
     """
     return chord_corrections(system, frequency_hz, force_coeffs, steps, samples)[-1]
 
@@ -233,29 +233,45 @@ def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLI
 def chord_corrections(system, frequency_hz, force_coeffs, steps: int,
                       samples: int = NONLINEAR_SAMPLES):
     """`linearisation_error` after 1, 2, ..., `steps` chord steps, stacked (steps, H): one
-    iteration gives every step (the model choice needs the first two)."""
-    k_mat, c_mat, m_mat = _matrices(system)
+    iteration gives every step (the model choice needs the first two).
+
+    The orbit engine's harmonic balance (`HarmonicBalance.chord`: its AFT residual on
+    `samples` points per period, harmonics 1..H of the force and the mean) on the model's
+    vector field driven by the measured force harmonics, with the chord matrix of the
+    model linearised at rest (`bsfs_jax.machine.tangent_matrices`). From zero its first
+    iterate is the linear steady state; each later one corrects for the joints'
+    nonlinearity, the mean displacement included.
+    """
+    from bsfs_jax import HarmonicForcing, vector_field
+    from bsfs_jax.solvers import HarmonicBalance
+
     h = force_coeffs.shape[-1]
-    kk = jnp.arange(1, h + 1)
-    w = 2.0 * jnp.pi * frequency_hz * kk  # (H,)
-    dyn = (k_mat[None] - (w**2)[:, None, None] * m_mat[None]
-           + 1j * w[:, None, None] * c_mat[None]).astype(complex)
-    rhs = jnp.zeros((h, 3), complex).at[:, 2].set(force_coeffs)
-    x_lin = jnp.linalg.solve(dyn, rhs[..., None])[..., 0]  # (H, 3)
-    theta = 2.0 * jnp.pi * jnp.arange(samples) / samples
-    phase = jnp.exp(1j * kk[None, :] * theta[:, None])  # (N, H)
-
-    def residual(x):
-        xs = jnp.real(phase @ x)
-        vs = jnp.real(phase @ (1j * w[:, None] * x))
-        coeff = (2.0 / samples) * (jnp.conj(phase).T @ restoring_forces(system, xs, vs))
-        return coeff + (-(w**2)[:, None] * (x @ m_mat.T)) - rhs
-
-    x, out = x_lin, []
-    for _ in range(steps):
-        x = x - jnp.linalg.solve(dyn, residual(x)[..., None])[..., 0]
-        out.append(-(w**2) * (x - x_lin)[:, 2])
-    return jnp.stack(out)
+    # Finite for the fit's padded records too (frequency and force 0; masked out after a
+    # vmap over every record, where a NaN would still poison the gradient).
+    live = frequency_hz > 0
+    frequency_hz = jnp.where(live, frequency_hz, 1.0)
+    k_mat, c_mat, m = tangent_matrices(system)
+    inv_m = 1.0 / m
+    jac = jnp.block([[jnp.zeros((3, 3)), jnp.eye(3)],
+                     [-inv_m[:, None] * k_mat, -inv_m[:, None] * c_mat]])
+    omega = 2.0 * jnp.pi * frequency_hz
+    size = jnp.max(jnp.abs(force_coeffs)) / (jnp.abs(k_mat[0, 0]) + 1.0)
+    # A displacement scale [m] for the scaled unknowns; the iterates do not depend on it,
+    # so no gradient flows through it.
+    size = jax.lax.stop_gradient(jnp.where(size > 0, size, 1e-6))
+    scale = jnp.concatenate([jnp.full(3, size), jnp.full(3, size * omega)])
+    jac_scaled = jac * scale[None, :] / scale[:, None]
+    forcing = HarmonicForcing(frequency_hz, jnp.real(force_coeffs), -jnp.imag(force_coeffs))
+    method = HarmonicBalance(harmonics=h, time_samples=samples)
+    period = 1.0 / frequency_hz
+    z = method.chord(vector_field, jnp.zeros(6 * (2 * h + 1)), (system, forcing), period, 1,
+                     scale, jac_scaled, steps + 1)
+    # Nut displacement harmonics X_k = scale * (a_k - i b_k) of each iterate.
+    a = z[:, 6:6 + 6 * h].reshape(-1, h, 6)[..., 2]
+    b = z[:, 6 + 6 * h:].reshape(-1, h, 6)[..., 2]
+    x = scale[2] * (a - 1j * b)
+    w = omega * jnp.arange(1, h + 1)
+    return jnp.where(live, -(w**2)[None] * (x[1:] - x[:1]), 0.0)
 
 
 def waveform(coeffs, frequency_hz, t):

@@ -13,7 +13,11 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._measurement import linear_acceleration, linearisation_error
+from identification._measurement import (
+    chord_corrections,
+    linear_acceleration,
+    linearisation_error,
+)
 from identification._orbit_model import nonlinear_acceleration
 
 
@@ -41,6 +45,40 @@ def test_chord_harmonic_balance_converges_to_the_periodic_orbit(worn_system, fre
     assert abs(one - exact) < 0.05 * abs(exact)
     assert abs(five - exact) < 1e-3 * abs(exact)
     assert 0.3 < abs(two - one) / abs(one - exact) < 3.0
+
+
+def _second_order_first_step(system, frequency, fc, samples=64):
+    """The first chord step of harmonic balance in displacements, harmonics 1..H and no
+    mean, written out here (numpy on the model's restoring forces): what identification
+    computed before it used the orbit engine's residual."""
+    from bsfs_jax.machine import tangent_matrices
+    from bsfs_jax.model import restoring_forces
+
+    k_mat, c_mat, m = (np.asarray(a) for a in tangent_matrices(system))
+    h = len(fc)
+    w = 2 * np.pi * frequency * np.arange(1, h + 1)
+    dyn = k_mat[None] - w[:, None, None] ** 2 * np.diag(m)[None] + 1j * w[:, None, None] * c_mat
+    rhs = np.zeros((h, 3), complex)
+    rhs[:, 2] = fc
+    x_lin = np.linalg.solve(dyn, rhs[..., None])[..., 0]
+    phase = np.exp(1j * np.outer(2 * np.pi * np.arange(samples) / samples, np.arange(1, h + 1)))
+    xs, vs = np.real(phase @ x_lin), np.real(phase @ (1j * w[:, None] * x_lin))
+    f = np.asarray(restoring_forces(system, jnp.asarray(xs), jnp.asarray(vs)))
+    r = (2.0 / samples) * (np.conj(phase).T @ f) - w[:, None] ** 2 * x_lin * m - rhs
+    return -(w**2) * (-np.linalg.solve(dyn, r[..., None])[..., 0][:, 2])
+
+
+@pytest.mark.parametrize("frequency, force", [(700.0, 100.0), (1117.0, 5.0), (150.0, 100.0)])
+def test_the_first_order_model_is_the_displacement_chord_step(worn_system, frequency, force):
+    """Identification's first-order correction runs on the orbit engine's AFT residual
+    (`HarmonicBalance.chord`, states and the mean); its first step is the textbook
+    displacement chord step (the first-order model is unchanged), and the mean shift it
+    adds moves the second step by far less than the step itself."""
+    fc = np.asarray([force, 0.04 * force - 0.01j * force, 0.02j * force], complex)
+    steps = np.asarray(chord_corrections(worn_system, frequency, jnp.asarray(fc), 2))
+    ref = _second_order_first_step(worn_system, frequency, fc)
+    assert np.max(np.abs(steps[0] - ref)) < 1e-7 * np.max(np.abs(ref))
+    assert np.max(np.abs(steps[1] - steps[0])) < 0.05 * np.max(np.abs(steps[0]))
 
 
 @pytest.fixture(scope="module")

@@ -162,6 +162,34 @@ class HarmonicBalance(AbstractOrbitMethod):
         g0, ga, gb = self._unpack(gc, d)
         return jnp.concatenate([-g0, (k * b - ga).reshape(-1), (-k * a - gb).reshape(-1)])
 
+    def chord(self, vector_field, z, args, period, n_periods, scale, jacobian, steps: int):
+        """`steps` chord iterations z <- z - J^-1 R(z) of this method's residual from z,
+        stacked (steps, len(z)).
+
+        J is the residual's Jacobian for the linear field z' = `jacobian` z (scaled
+        states: `jacobian` is d(f(t, z * scale) / scale)/dz at the expansion point). It is
+        block-diagonal: -jacobian / omega on the mean and, on harmonic k, i k - jacobian /
+        omega acting on a_k - i b_k, so each step costs one residual and H + 1 solves of
+        size d. From z = 0, with the field's nonlinear part zero there, the first iterate
+        is the linear steady state and the next ones are successive corrections for the
+        nonlinearity (first order, second order, ...). Traceable and differentiable.
+        """
+        d = scale.shape[0]
+        omega = 2.0 * jnp.pi / (n_periods * period)
+        a_s = jnp.asarray(jacobian) / omega
+        k = jnp.arange(1, self.harmonics + 1)
+        blocks = 1j * k[:, None, None] * jnp.eye(d)[None] - a_s[None].astype(complex)
+
+        def step(zz, _):
+            r0, ra, rb = self._unpack(self.residual(vector_field, zz, args, period,
+                                                    n_periods, scale), d)
+            dz = jnp.linalg.solve(blocks, (ra - 1j * rb)[..., None])[..., 0]
+            d0 = jnp.linalg.solve(-a_s, r0)
+            new = zz - jnp.concatenate([d0, dz.real.reshape(-1), (-dz.imag).reshape(-1)])
+            return new, new
+
+        return jax.lax.scan(step, z, None, length=int(steps))[1]
+
     def initial_state(self, z, scale):
         d = scale.shape[0]
         c0, a, _ = self._unpack(z, d)
