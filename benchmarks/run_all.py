@@ -9,12 +9,13 @@ run, `python scripts/status.py` (`make status`) puts the new numbers in README's
 """
 
 import argparse
-import os
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
+FILES_MODULE = Path(__file__).resolve().parent.parent / "bsfs_jax" / "_files.py"
 ORDER = ["bench_cold.py", "bench_simulate.py", "bench_sweep.py", "bench_orbits.py",
          "bench_identify.py", "bench_resonance.py", "bench_fit_solver.py", "bench_design.py"]
 RESULT_ORDER = ["cold.md", "simulate.md", "b1_sweep.md", "orbits.md", "identify.md",
@@ -53,9 +54,12 @@ def diff_summary(old: str, new: str) -> str:
 
 
 def write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    """The project's one atomic writer (`bsfs_jax/_files.py`), loaded by its path: this
+    script runs without jax, which `import bsfs_jax` would import."""
+    spec = importlib.util.spec_from_file_location("_bsfs_files", FILES_MODULE)
+    files = sys.modules.setdefault(spec.name, importlib.util.module_from_spec(spec))
+    spec.loader.exec_module(files)
+    files.write_text_atomic(path, text)
 
 
 def main(argv=None) -> int:

@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import argparse
 import ast
+import importlib.util
 import json
 import math
-import os
 import re
 import sys
 import tomllib
@@ -771,13 +771,12 @@ def diff_summary(old: str, new: str) -> str:
 
 
 def write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    try:
-        os.chmod(tmp, path.stat().st_mode & 0o777)
-    except OSError:
-        pass
-    os.replace(tmp, path)
+    """The project's one atomic writer (`bsfs_jax/_files.py`), loaded by its path: this
+    script runs without jax, which `import bsfs_jax` would import."""
+    spec = importlib.util.spec_from_file_location("_bsfs_files", ROOT / "bsfs_jax/_files.py")
+    files = sys.modules.setdefault(spec.name, importlib.util.module_from_spec(spec))
+    spec.loader.exec_module(files)
+    files.write_text_atomic(path, text)
 
 
 def main(argv=None) -> int:

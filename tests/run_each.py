@@ -15,6 +15,7 @@ Exit status: 0 when every file passed, else 1 (the failing files are listed).
 """
 
 import datetime
+import importlib.util
 import json
 import os
 import platform
@@ -87,10 +88,13 @@ def _load() -> list[float] | None:
 
 
 def write_record(path: Path, data: dict) -> None:
-    """Write the record atomically (a temporary file beside it, then a rename)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1) + "\n")
-    os.replace(tmp, path)
+    """Write the record atomically, by the project's one atomic writer
+    (`bsfs_jax/_files.py`, loaded by its path: this runner does not import jax)."""
+    spec = importlib.util.spec_from_file_location("_bsfs_files",
+                                                  HERE.parent / "bsfs_jax/_files.py")
+    files = sys.modules.setdefault(spec.name, importlib.util.module_from_spec(spec))
+    spec.loader.exec_module(files)
+    files.write_text_atomic(path, json.dumps(data, indent=1) + "\n")
 
 
 def main(argv=None, files=None) -> int:
