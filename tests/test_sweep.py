@@ -346,6 +346,17 @@ def test_cli_sweep_writes_outputs_and_resumes(tmp_path):
     assert ev["orbit_residual"] < 1e-6 and 0 < ev["max_multiplier"] < 1
     assert ev["lyapunov_per_period"] < 0 and ev["transient_s"] > 0
     assert "stable period-1 orbit" in p0["reason"]
+    # The verifier's orbit (solvers.check_orbits, 32 samples per period) is the engine's:
+    # the period-1 orbit by shooting (the design metric's, its maximum polished on the
+    # interpolant) has the same amplitude, within what 32 samples can miss of a sinusoid's
+    # crest, 1 - cos(pi / 32) = 0.5 %.
+    from bsfs_jax import preset
+    from bsfs_jax.design import OperatingPoint
+    from bsfs_jax.design._metrics import orbit_amplitude
+
+    engine = float(orbit_amplitude(preset(), OperatingPoint(300.0, 100.0)))
+    assert p0["amplitude"] == pytest.approx(engine, rel=5e-3)
+    assert p0["amplitude"] <= engine * (1 + 1e-6)
     # Rerun with the same --out: nothing recomputed.
     assert main(argv) == 0
     summary2 = json.loads((out / "summary.json").read_text())
