@@ -128,6 +128,41 @@ def test_variances_are_calibrated(kind):
     assert 0.85 < np.mean(z2) < 1.15, np.mean(z2)
 
 
+def test_chirp_variances_are_calibrated_through_a_resonance():
+    """Noise on both channels through a sharp resonance (a two-pole filter at 1000 Hz, 1 %
+    damping, 20 lines per half-power bandwidth): the force sensor's noise enters H1
+    through |H|^2, so the error is largest at the peak. The stated variances hold there
+    and on the flanks separately (mean z^2 within 15 % of 1); the output-noise-only
+    estimate it replaced gave mean z^2 of 1.4 at the peak and 0.75 on the flanks."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(5)
+    n, f0, zeta = 10240, 1000.0, 0.01
+    t = np.arange(n) / FS
+    rad = np.exp(-zeta * 2 * np.pi * f0 / FS)
+    den = [1.0, -2 * rad * np.cos(2 * np.pi * f0 / FS), rad**2]
+    w = np.sin(0.5 * np.pi * np.clip(np.minimum(t, t[-1] - t) / (0.03 * t[-1]), 0, 1)) ** 2
+    force = w * np.sin(2 * np.pi * (200 * t + 0.5 * 3800 / t[-1] * t**2))
+    acc = lfilter([1.0], den, force)
+    rms = lambda x: np.sqrt(np.mean(x**2))  # noqa: E731
+    bins = {"peak": [], "flanks": []}
+    for _ in range(30):
+        f_meas = force + rng.normal(0, 0.01 * rms(force), n)  # 40 dB on both channels
+        a_meas = acc + rng.normal(0, 0.01 * rms(acc), n)
+        rec = Record(t, f_meas, a_meas, np.nan, 1.0, FS, 0.0, 20.0,
+                     dict(excitation="chirp", start_hz=200.0, stop_hz=4000.0), "chirp.csv")
+        frf = estimate_frf(rec, min_coherence=0.0)
+        zf = np.exp(-2j * np.pi * frf.frequency_hz / FS)
+        exact = 1.0 / (1.0 + den[1] * zf + den[2] * zf**2)
+        d = (frf.accelerance - exact)[:, None]
+        z2 = (np.concatenate([d.real, d.imag], 1) / frf.std) ** 2
+        dist = np.abs(frf.frequency_hz - f0) / (2 * zeta * f0)  # in half-power bandwidths
+        bins["peak"].append(z2[dist < 1])
+        bins["flanks"].append(z2[(dist >= 1) & (dist < 3)])
+    for name, z2 in bins.items():
+        assert 0.85 < np.mean(np.concatenate(z2)) < 1.15, (name, np.mean(np.concatenate(z2)))
+
+
 def test_single_frame_needs_a_burst(chirp):
     cut = Record(chirp.time[1000:4000], chirp.force[1000:4000], chirp.acceleration[1000:4000],
                  np.nan, 5.0, FS, chirp.speed_rpm, chirp.ambient_c, chirp.meta, "cut.csv")
