@@ -20,6 +20,7 @@ from ._forecast import (
     value_jac_hess,
 )
 from ._liftoff import linear_liftoff, nonlinear_liftoff
+from ._parameters import require_x64
 
 # A force beyond this many times the larger preload drives the joints far out of contact,
 # beyond what the model's Hertz joints were validated for (physics.md): refused.
@@ -242,6 +243,7 @@ def forecast_liftoff(ident: Identified, *, start_hz=None, stop_hz=None,
     """The lift-off part of `forecast` alone (the same computation, on the same band):
     {"quantities": [liftoff_force_n], "per_joint_liftoff": [...]}. For studies of the
     lift-off's interval that need not continue the FRC."""
+    require_x64("identification.forecast_liftoff")
     from bsfs_jax.design import OrbitSettings
 
     settings = OrbitSettings() if settings is None else settings
@@ -256,6 +258,7 @@ def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
     """The forecast (`prediction.json`'s content less the file fields): quantities, health,
     the FRC branches (estimate, probes) and, with `nominal_curve`, the nominal drive's
     (for the figure only; the coverage study skips it)."""
+    require_x64("identification.forecast")
     import bsfs_jax
     from bsfs_jax.design import OrbitSettings
 

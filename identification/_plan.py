@@ -19,7 +19,7 @@ import numpy as np
 
 from . import _model
 from ._measurement import HarmonicData
-from ._parameters import DEFAULT_FIT
+from ._parameters import DEFAULT_FIT, require_x64
 from ._problem import Problem
 from ._records import Record
 from ._uncertainty import IDENTIFIABLE_STD
@@ -261,6 +261,7 @@ def fisher_stds(plans, prior, fit_names=DEFAULT_FIT, *, accel_snr_db=35.0,
 def plan_test(prior, fit_names=DEFAULT_FIT, plans=None, *, accel_snr_db=35.0,
               force_snr_db=40.0, threshold=IDENTIFIABLE_STD) -> dict:
     """Compare plans; recommend the shortest one that identifies every chosen parameter."""
+    require_x64("identification.plan_test")
     plans = candidate_plans() if plans is None else plans
     rows = []
     for plan, (names, std, sv, _) in zip(plans, fisher_stds(

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._model import residual
+from ._parameters import require_x64
 
 RHAT_MAX = 1.01
 ESS_PER_CHAIN_MIN = 100
@@ -79,6 +80,7 @@ def posterior(result, unc, *, samples: int = 1000, warmup: int = 500, chains: in
     `result`: a `FitResult`; `unc`: its `Uncertainty` (start jitter, noise scale).
     Raises ValueError where the sampler cannot apply (no priors, periodic-orbit records).
     """
+    require_x64("identification.posterior")
     from blackjax.diagnostics import effective_sample_size, potential_scale_reduction
 
     pb = result.problem

@@ -12,7 +12,7 @@ import bsfs_jax
 
 from ._fit import FitResult, fit, gate_steady_state
 from ._measurement import harmonic_analysis
-from ._parameters import DEFAULT_FIT
+from ._parameters import DEFAULT_FIT, require_x64
 from ._problem import MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
 from ._summary import parameter_rows, summary_text
@@ -85,6 +85,7 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     record uses a linear model (with periodic-orbit records each profile point costs a
     re-fit of orbits; the report then says the check was skipped).
     """
+    require_x64("identification.identify")
     from ._load import load_records
 
     t0 = time.perf_counter()

@@ -34,6 +34,7 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.model import accelerations
 
+from ._parameters import require_x64
 from ._records import Record
 
 
@@ -197,6 +198,7 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
     one `synthesize(..., seed=seeds[k])` makes: the same random draws in the same order, and
     the same response to the integration tolerance (vmapped lanes take their own steps;
     tests/test_identification.py checks 1e-6 of the peak)."""
+    require_x64("identification.synthesize")
     if excitation not in ("sine", "chirp", "random"):
         raise ValueError(f"excitation must be 'sine', 'chirp' or 'random', got {excitation!r}")
     if sweep not in (None, "up", "down") or (sweep and excitation != "sine"):

@@ -442,3 +442,26 @@ def test_monte_carlo_sigma_matches_scatter(truth):
     sigma = np.mean(np.asarray(stds), axis=0)
     ratio = sigma / scatter
     assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), ratio
+
+
+def test_identification_refuses_32_bit_floats():
+    """Without jax's 64-bit mode the through-resonance orbits fail; identify, synthesize and
+    forecast say what to do instead of fitting in float32."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import identification as idn, bsfs_jax\n"
+            "for call in (lambda: idn.identify([], None),\n"
+            "             lambda: idn.synthesize(bsfs_jax.preset(), 100.0, 10.0)):\n"
+            "    try:\n"
+            "        call()\n"
+            "    except RuntimeError as exc:\n"
+            "        print('refused:', exc)\n")
+    env = dict(os.environ, JAX_ENABLE_X64="0")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("refused:")]
+    assert len(lines) == 2, out.stdout
+    assert all("needs 64-bit floats" in ln and "jax_enable_x64" in ln for ln in lines)
