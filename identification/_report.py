@@ -11,7 +11,7 @@ import numpy as np
 import bsfs_jax
 
 from ._fit import FitResult, fit, gate_steady_state
-from ._measurement import harmonic_analysis
+from ._measurement import HarmonicData, harmonic_analysis
 from ._parameters import DEFAULT_FIT, require_x64
 from ._problem import MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
@@ -64,8 +64,8 @@ class IdentificationResult:
 
 def measurement_data(record):
     """Sine `Record` -> `HarmonicData`; chirp/random `Record` -> its estimated FRF; an FRF
-    record is used as it is."""
-    if is_frf(record):
+    record or a sine's `HarmonicData` is used as it is."""
+    if is_frf(record) or isinstance(record, HarmonicData):
         return record
     if getattr(record, "excitation", "sine") != "sine":
         from ._frf import estimate_frf

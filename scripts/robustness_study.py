@@ -20,6 +20,8 @@ the default preset as prior with the default priors, 3 starts, the staged multi-
     python scripts/robustness_study.py --set preload          # 100 drives
     python scripts/robustness_study.py --set default --drives 10
     python scripts/robustness_study.py --report-only          # docs/ROBUSTNESS.md tables
+    python scripts/robustness_study.py --set preload --noise-free --drives 30
+                                                  # the bias of model and estimator alone
 
 Each drive is appended as one JSON line to out/robustness/<set>.jsonl (fsynced); a rerun
 skips the drives already there, so an interrupted study resumes. Results: docs/ROBUSTNESS.md.
@@ -28,6 +30,7 @@ skips the drives already there, so an interrupted study resumes. Results: docs/R
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import sys
@@ -92,16 +95,36 @@ def plan(params):
     return sines, f1
 
 
-def synth(params, drive: int):
+def synth(params, drive: int, effects=EFFECTS):
     sines, f1 = plan(params)
     recs = [idn.synthesize(params, None, CHIRP["force"], duration_s=CHIRP["duration"],
                            sample_rate_hz=FS, excitation="chirp", start_hz=CHIRP["start"],
-                           stop_hz=CHIRP["stop"], effects=EFFECTS, seed=3_000_000 + 100 * drive)]
+                           stop_hz=CHIRP["stop"], effects=effects, seed=3_000_000 + 100 * drive)]
     for j, (f, force, sweep) in enumerate(sines):
         recs.append(idn.synthesize(params, f, force, duration_s=SINE_S, sample_rate_hz=FS,
-                                   effects=EFFECTS, sweep=sweep,
+                                   effects=effects, sweep=sweep,
                                    seed=3_000_000 + 100 * drive + 1 + j))
     return recs, f1
+
+
+def noise_free(params, drive: int, records):
+    """The drive's measurement data with the values of its noise-free records (sensor SNR
+    300 dB, the same seeds: the same phases, distortion and drift) and the standard errors
+    of the noisy ones: the fit's error is then model and estimator error alone, and z is
+    that bias in units of the stated std (coverage means nothing here)."""
+    clean, _ = synth(params, drive, dataclasses.replace(EFFECTS, accel_snr_db=300.0,
+                                                        force_snr_db=300.0))
+    out = []
+    for r, c in zip(records, clean):
+        d, dc = idn.measurement_data(r), idn.measurement_data(c)
+        if r.excitation != "sine":
+            h = (np.interp(d.frequency_hz, dc.frequency_hz, dc.accelerance.real)
+                 + 1j * np.interp(d.frequency_hz, dc.frequency_hz, dc.accelerance.imag))
+            out.append(dataclasses.replace(d, accelerance=h))
+        else:
+            out.append(dataclasses.replace(d, acceleration=dc.acceleration, force=dc.force,
+                                           frequency_hz=dc.frequency_hz))
+    return out
 
 
 def cost_at(problem, values: dict) -> float:
@@ -130,12 +153,14 @@ def failure_cause(res, cost_fit, cost_truth) -> str | None:
     return None
 
 
-def run_drive(kind: str, drive: int) -> dict:
+def run_drive(kind: str, drive: int, clean: bool = False) -> dict:
     params, truth = draw_drive(kind, drive)
     t0 = time.perf_counter()
     row = dict(drive=drive, truth=truth)
     try:
         recs, f1 = synth(params, drive)
+        if clean:
+            recs = noise_free(params, drive, recs)
     except Exception as exc:  # noqa: BLE001 - a drive the simulation cannot run
         return dict(row, cause=f"synthesis failed: {exc}".splitlines()[0], converged=False)
     t1 = time.perf_counter()
@@ -240,6 +265,9 @@ def main(argv=None) -> int:
                     help="fit set (repeatable; default both)")
     ap.add_argument("--drives", type=int, default=100)
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--noise-free", action="store_true",
+                    help="fit noise-free records weighted as the noisy ones (z = the bias of "
+                         "model and estimator in stated stds); rows in <set>.noise_free.jsonl")
     ap.add_argument("--out", type=Path, default=OUT,
                     help=f"results folder (default {OUT.relative_to(ROOT)})")
     args = ap.parse_args(argv)
@@ -248,13 +276,14 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     commit = _commit()
     for kind in kinds:
-        path = out / f"{kind}.jsonl"
+        tag = ".noise_free" if args.noise_free else ""
+        path = out / f"{kind}{tag}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
             for drive in range(args.drives):
                 if drive in done:
                     continue
-                row = dict(run_drive(kind, drive), commit=commit)
+                row = dict(run_drive(kind, drive, args.noise_free), commit=commit)
                 append_line(path, row)
                 print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
                       f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
@@ -264,9 +293,9 @@ def main(argv=None) -> int:
         s = summarize(rows, kind)
         s["machine"] = f"{platform.machine()}, {platform.python_version()}"
         s["commits"] = sorted({r.get("commit", "unrecorded") for r in rows})
-        (out / f"{kind}_summary.json").write_text(json.dumps(s, indent=1))
+        (out / f"{kind}{tag}_summary.json").write_text(json.dumps(s, indent=1))
         md = markdown(s)
-        (out / f"{kind}_summary.md").write_text(md)
+        (out / f"{kind}{tag}_summary.md").write_text(md)
         print(md)
     return 0
 
