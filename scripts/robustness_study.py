@@ -64,9 +64,14 @@ Z95 = 1.959963984540054
 COST_RTOL = 1e-6  # "no higher than the cost at the truth", up to round-off
 
 
-def draw_drive(kind: str, drive: int):
-    """The drive's truth (BallScrewParams at SPEED) and {fit name: true value}."""
-    rng = np.random.default_rng(20_000 + drive)
+def draw_drive(kind: str, drive: int, draw: str = "uniform"):
+    """The drive's truth (BallScrewParams at SPEED) and {fit name: true value}.
+
+    `draw`: "uniform" (every parameter but the preloads log-uniform over the central 95 %
+    of its prior) or "prior" (from the prior itself, log-normal with the prior's sigma:
+    the population under which the intervals' Bayesian calibration is defined; seeds
+    30000 + drive). The preloads are uniform over 50-100 % of nominal either way."""
+    rng = np.random.default_rng((20_000 if draw == "uniform" else 30_000) + drive)
     p = bsfs_jax.preset().replace("thermal.speed_rpm", SPEED)
     names = SETS[kind]
     truth = {}
@@ -80,6 +85,8 @@ def draw_drive(kind: str, drive: int):
         value = float(derived[name](p) if value is None else value)
         if name.endswith("_preload"):
             value *= rng.uniform(0.5, 1.0)
+        elif draw == "prior":
+            value *= float(np.exp(rng.normal() * fp.prior_sigma))
         else:
             value *= float(np.exp(rng.uniform(-Z95, Z95) * fp.prior_sigma))
         p = p.replace(fp.key, value)
@@ -153,8 +160,8 @@ def failure_cause(res, cost_fit, cost_truth) -> str | None:
     return None
 
 
-def run_drive(kind: str, drive: int, clean: bool = False) -> dict:
-    params, truth = draw_drive(kind, drive)
+def run_drive(kind: str, drive: int, clean: bool = False, draw: str = "uniform") -> dict:
+    params, truth = draw_drive(kind, drive, draw)
     t0 = time.perf_counter()
     row = dict(drive=drive, truth=truth)
     try:
@@ -265,6 +272,10 @@ def main(argv=None) -> int:
                     help="fit set (repeatable; default both)")
     ap.add_argument("--drives", type=int, default=100)
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--draw", choices=("uniform", "prior"), default="uniform",
+                    help="the drives' dampers (and the default set's other parameters): "
+                         "log-uniform over the prior's central 95 %% (default) or from the "
+                         "prior itself; rows in <set>.prior.jsonl")
     ap.add_argument("--noise-free", action="store_true",
                     help="fit noise-free records weighted as the noisy ones (z = the bias of "
                          "model and estimator in stated stds); rows in <set>.noise_free.jsonl")
@@ -276,14 +287,15 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     commit = _commit()
     for kind in kinds:
-        tag = ".noise_free" if args.noise_free else ""
+        tag = (".prior" if args.draw == "prior" else "") + (".noise_free" if args.noise_free
+                                                             else "")
         path = out / f"{kind}{tag}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
             for drive in range(args.drives):
                 if drive in done:
                     continue
-                row = dict(run_drive(kind, drive, args.noise_free), commit=commit)
+                row = dict(run_drive(kind, drive, args.noise_free, args.draw), commit=commit)
                 append_line(path, row)
                 print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
                       f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
