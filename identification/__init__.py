@@ -34,6 +34,7 @@ from ._forecast import identified_from_result as identified_from_result
 from ._forecast import load_identified as load_identified
 from ._forecast_run import forecast as forecast
 from ._forecast_run import forecast_liftoff as forecast_liftoff
+from ._forecast_run import forecast_modal as forecast_modal
 from ._frf import FrfRecord as FrfRecord
 from ._frf import estimate_frf as estimate_frf
 from ._frf import frf_variance as frf_variance

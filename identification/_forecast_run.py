@@ -253,6 +253,18 @@ def forecast_liftoff(ident: Identified, *, start_hz=None, stop_hz=None,
     return dict(quantities=[lift], per_joint_liftoff=per_joint)
 
 
+def forecast_modal(ident: Identified, nominal=None) -> dict:
+    """The modal quantities and the preloads of `forecast` alone (the same computation):
+    {"quantities": [...], "per_joint_liftoff": []}. For studies of those intervals that
+    need not continue the FRC."""
+    require_x64("identification.forecast_modal")
+    import bsfs_jax
+
+    modal, _ = _modal(ident)
+    pre = _preloads(ident, bsfs_jax.preset() if nominal is None else nominal)
+    return dict(quantities=modal + pre, per_joint_liftoff=[])
+
+
 def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
              nominal=None, settings=None, nominal_curve: bool = True) -> dict:
     """The forecast (`prediction.json`'s content less the file fields): quantities, health,

@@ -14,6 +14,7 @@ run on the truth (worn.toml) itself, the preloads read from it.
     python scripts/forecast_coverage.py --workers 2     # two worker processes at a time
     python scripts/forecast_coverage.py --report-only   # tables from the files
     python scripts/forecast_coverage.py --part liftoff  # the lift-off alone (~15 s each)
+    python scripts/forecast_coverage.py --part modal    # modal quantities, preloads (~5 s)
 
 `--part liftoff` runs the same replicates (same seeds, so the same identification) through
 the lift-off alone (`identification.forecast_liftoff`, the computation `forecast` does on
@@ -126,7 +127,8 @@ def row_of(replicate, fc, truth: dict, seconds: dict, res) -> dict:
 def summarize(rows: list[dict]) -> dict:
     names = list(rows[0]["quantities"])
     out = dict(replicates=len(rows), quantities={},
-               liftoff_pass=sum(bool(r.get("liftoff_pass")) for r in rows))
+               liftoff_pass=sum(bool(r.get("liftoff_pass")) for r in rows),
+               modal_pass=sum(bool(r.get("modal_pass")) for r in rows))
     for n in names:
         qs = [r["quantities"].get(n) for r in rows]
         judged = [q for q in qs if q is not None and q["covers"] is not None]
@@ -165,7 +167,9 @@ def markdown(s: dict, force: float) -> str:
     lines = [f"Forecast at {force:g} N; {s['replicates']} replicates of the preload-loss "
              "test (worn.toml), each identified (PRELOAD_FIT) and predicted"
              + (f"; the lift-off quantities of {s['liftoff_pass']} of them from the lift-off "
-                "pass (`--part liftoff`)" if s.get("liftoff_pass") else "") + ".", "",
+                "pass (`--part liftoff`)" if s.get("liftoff_pass") else "")
+             + (f"; the modal quantities and preloads of {s['modal_pass']} from the modal pass "
+                "(`--part modal`)" if s.get("modal_pass") else "") + ".", "",
              "| quantity | truth | coverage | 95 % CI of coverage | mean z | std z | "
              "mean z of the plug-in value | mean rel. error | methods |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -193,11 +197,13 @@ def markdown(s: dict, force: float) -> str:
 
 
 def files(force: float, part: str = "all") -> list[Path]:
-    """The rows of one part: the whole forecast (`all`: <force>N.jsonl, .w<i>.jsonl) or
-    the lift-off pass (`liftoff`: <force>N.liftoff.jsonl, .liftoff.w<i>.jsonl)."""
-    if part == "liftoff":
-        return sorted(OUT.glob(f"{force:g}N.liftoff*.jsonl"))
-    return sorted(p for p in OUT.glob(f"{force:g}N*.jsonl") if ".liftoff" not in p.name)
+    """The rows of one part: the whole forecast (`all`: <force>N.jsonl, .w<i>.jsonl), the
+    lift-off pass (`liftoff`: <force>N.liftoff.jsonl, .liftoff.w<i>.jsonl) or the modal
+    pass (`modal`: <force>N.modal*.jsonl)."""
+    if part in ("liftoff", "modal"):
+        return sorted(OUT.glob(f"{force:g}N.{part}*.jsonl"))
+    return sorted(p for p in OUT.glob(f"{force:g}N*.jsonl")
+                  if ".liftoff" not in p.name and ".modal" not in p.name)
 
 
 def row_path(force: float, part: str, worker: int | None = None) -> Path:
@@ -206,16 +212,18 @@ def row_path(force: float, part: str, worker: int | None = None) -> Path:
                   f"{force:g}N{tag}.w{worker}.jsonl")
 
 
-def overlay(rows: list[dict], lift_rows: list[dict]) -> list[dict]:
-    """The whole forecast's rows with their lift-off quantities replaced by the lift-off
-    pass's, replicate by replicate (the same seeds, so the same identification)."""
+def overlay(rows: list[dict], lift_rows: list[dict], tag: str = "liftoff_pass") -> list[dict]:
+    """The whole forecast's rows with the quantities of a partial pass (lift-off or modal)
+    replaced by that pass's, replicate by replicate (the same seeds, so the same
+    identification). Without whole-forecast rows, the pass's rows alone."""
+    if not rows:
+        return [dict(r, **{tag: True}) for r in lift_rows]
     by_rep = {r["replicate"]: r for r in lift_rows}
     out = []
     for r in rows:
         lr = by_rep.get(r["replicate"])
         if lr is not None:
-            r = dict(r, quantities={**r["quantities"], **lr["quantities"]},
-                     liftoff_pass=True)
+            r = dict(r, quantities={**r["quantities"], **lr["quantities"]}, **{tag: True})
         out.append(r)
     return out
 
@@ -236,7 +244,8 @@ def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
                 write_json(truth_file, truth_values(ident, truth, force))
             t_truth = time.perf_counter()
             fc = (idn.forecast(ident, force, nominal_curve=False) if part == "all"
-                  else idn.forecast_liftoff(ident))
+                  else idn.forecast_liftoff(ident) if part == "liftoff"
+                  else idn.forecast_modal(ident))
         t3 = time.perf_counter()
         tv = json.loads(truth_file.read_text())
         row = row_of(k, fc, tv, dict(synth=t1 - t0, identify=t2 - t1,
@@ -258,9 +267,10 @@ def main(argv=None) -> int:
                     help="worker processes at a time (each runs at most 10 replicates)")
     ap.add_argument("--shard", default=None, help=argparse.SUPPRESS)  # "i/n" (a worker)
     ap.add_argument("--report-only", action="store_true", help="summarise the files")
-    ap.add_argument("--part", choices=("all", "liftoff"), default="all",
-                    help="the whole forecast, or the lift-off alone (its rows then replace "
-                         "the whole forecast's lift-off quantities in the summary)")
+    ap.add_argument("--part", choices=("all", "liftoff", "modal"), default="all",
+                    help="the whole forecast, or the lift-off alone, or the modal quantities "
+                         "and preloads alone (their rows then replace the whole forecast's "
+                         "quantities of the same names in the summary)")
     args = ap.parse_args(argv)
     n = 4 if args.quick else args.replicates
     part = args.part
@@ -298,7 +308,7 @@ def main(argv=None) -> int:
                        for r in read_done(f) if r["replicate"] < n}.values(),
                       key=lambda r: r["replicate"])
 
-    rows = overlay(read("all"), read("liftoff"))
+    rows = overlay(overlay(read("all"), read("liftoff")), read("modal"), "modal_pass")
     if not rows:
         return 0
     s = summarize(rows)

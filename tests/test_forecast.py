@@ -246,3 +246,20 @@ def test_bad_input_gets_one_line_and_writes_nothing(folders, tmp_path, capsys):
     (bad / "report.json").write_text(json.dumps(report))
     err = _refused(["--from", str(bad)], capsys, out)
     assert "did not converge" in err and "Identify again" in err
+
+
+def test_forecast_modal_is_the_forecasts_modal_part(folders):
+    """`forecast_modal` (what the coverage study's `--part modal` runs) gives the same
+    modal quantities and preloads as the whole forecast in prediction.json."""
+    from identification import forecast_modal, load_identified
+
+    ident, _, data = folders
+    whole = {x["name"]: x for x in data["quantities"]}
+    part = forecast_modal(load_identified(ident))
+    names = [q.name for q in part["quantities"]]
+    assert set(names) == {"natural_frequency_1_hz", "damping_ratio_1",
+                          "static_stiffness_n_per_um", "nut_preload_n", "bearing_preload_n"}
+    for q in part["quantities"]:
+        assert q.value == pytest.approx(whole[q.name]["value"], rel=1e-9), q.name
+        assert q.ci95 == pytest.approx(whole[q.name]["ci95"], rel=1e-9), q.name
+        assert q.method == whole[q.name]["method"]
