@@ -212,6 +212,9 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
         if frequency_hz is None:
             raise ValueError("a sine record needs frequency_hz")
         f = float(frequency_hz)
+        if not 0 < f < 0.4 * sample_rate_hz:
+            raise ValueError(f"frequency_hz = {f:g}: a sine record needs 0 < frequency_hz < "
+                             f"0.4 x the sample rate ({0.4 * sample_rate_hz:g} Hz)")
         n_settle = int(round(effects.settle_s * fs_hi))
         forcings = [ShakerForce(*(jnp.asarray(v, dtype=float) for v in (
             force_n, f, rng.uniform(0, 2 * np.pi), effects.h2, effects.h3,

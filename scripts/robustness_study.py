@@ -20,6 +20,7 @@ the default preset as prior with the default priors, 3 starts, the staged multi-
     python scripts/robustness_study.py --set preload          # 100 drives
     python scripts/robustness_study.py --set default --drives 10
     python scripts/robustness_study.py --report-only          # docs/ROBUSTNESS.md tables
+    python scripts/robustness_study.py --set default --draw prior   # drives from the prior
     python scripts/robustness_study.py --set preload --noise-free --drives 30
                                                   # the bias of model and estimator alone
 

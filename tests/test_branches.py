@@ -36,6 +36,11 @@ def test_sweep_direction_is_in_the_header(swept_records):
     assert data["down"].record.meta["sweep"] == "down"
     with pytest.raises(ValueError, match="sweep"):
         idn.synthesize(bsfs_jax.preset(), 500.0, 100.0, sweep="sideways")
+    # A drive whose first mode is at ~0 Hz gave a plan with sines at 0 Hz, which failed as
+    # "no periodic orbit ... at 0 Hz"; a frequency outside the band is now refused first.
+    for f in (0.0, 5000.0):
+        with pytest.raises(ValueError, match="0 < frequency_hz < 0.4 x the sample rate"):
+            idn.synthesize(bsfs_jax.preset(), f, 100.0, sweep="up")
 
 
 def test_each_record_is_labelled_with_the_branch_it_is_on(swept_records):
