@@ -258,8 +258,6 @@ def forecast_modal(ident: Identified, nominal=None) -> dict:
     {"quantities": [...], "per_joint_liftoff": []}. For studies of those intervals that
     need not continue the FRC."""
     require_x64("identification.forecast_modal")
-    import bsfs_jax
-
     modal, _ = _modal(ident)
     pre = _preloads(ident, bsfs_jax.preset() if nominal is None else nominal)
     return dict(quantities=modal + pre, per_joint_liftoff=[])

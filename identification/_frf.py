@@ -330,7 +330,7 @@ def _numerator_noise(h, inv_f2, ok):
             w = np.where(valid & (pred > 0), 1.0 / np.where(pred > 0, pred, 1.0) ** 2, 0.0)
             _, b = _line_fit(y, r, w, 4 * hw)
             a = np.clip(np.nan_to_num(_box(w * (y - b * r), hw) / _box(w, hw)), 0.0, None)
-        flat = _box(y, hw) / _box(valid.astype(float), hw)
+        flat = _box(y, hw) / _box(valid.astype(float), hw)  # the old flat estimate
         return np.maximum(a + b * np.abs(h) ** 2, 0.1 * flat)
 
 

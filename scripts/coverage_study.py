@@ -159,6 +159,12 @@ def noise_free_data(truth, replicate: int, over: dict, records=None):
     noisy = [idn.measurement_data(r) for r in (records or synth_records(truth, replicate, base))]
     clean = [idn.measurement_data(r) for r in synth_records(
         truth, replicate, dict(base, effects=dict(accel_snr_db=300.0, force_snr_db=300.0)))]
+    return with_clean_values(noisy, clean)
+
+
+def with_clean_values(noisy, clean) -> list:
+    """Measurement data with the values of `clean` (noise-free records of the same seeds)
+    and the standard errors of `noisy` (FRF lines interpolated onto the noisy ones' lines)."""
     out = []
     for d, c in zip(noisy, clean):
         if is_frf(d):

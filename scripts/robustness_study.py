@@ -44,7 +44,12 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 import numpy as np  # noqa: E402
-from coverage_study import append_line, binom_ci, read_done  # noqa: E402
+from coverage_study import (  # noqa: E402
+    append_line,
+    binom_ci,
+    read_done,
+    with_clean_values,
+)
 
 import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
@@ -122,17 +127,8 @@ def noise_free(params, drive: int, records):
     that bias in units of the stated std (coverage means nothing here)."""
     clean, _ = synth(params, drive, dataclasses.replace(EFFECTS, accel_snr_db=300.0,
                                                         force_snr_db=300.0))
-    out = []
-    for r, c in zip(records, clean):
-        d, dc = idn.measurement_data(r), idn.measurement_data(c)
-        if r.excitation != "sine":
-            h = (np.interp(d.frequency_hz, dc.frequency_hz, dc.accelerance.real)
-                 + 1j * np.interp(d.frequency_hz, dc.frequency_hz, dc.accelerance.imag))
-            out.append(dataclasses.replace(d, accelerance=h))
-        else:
-            out.append(dataclasses.replace(d, acceleration=dc.acceleration, force=dc.force,
-                                           frequency_hz=dc.frequency_hz))
-    return out
+    return with_clean_values([idn.measurement_data(r) for r in records],
+                             [idn.measurement_data(c) for c in clean])
 
 
 def cost_at(problem, values: dict) -> float:
