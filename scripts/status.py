@@ -626,6 +626,36 @@ def _tests(src: Sources, v: Values):
     put("longest", longest)
 
 
+def _gpu(src: Sources, v: Values, targets: dict):
+    f = "benchmarks/results/gpu_b1.json"
+    rows = lambda: src.json(f).raw()  # noqa: E731
+    put = lambda name, fn: v.put(f"gpu.{name}", fn, f)  # noqa: E731
+
+    def row(case, points=None, **match):
+        for r in rows():
+            if r.get("case") == case and (points is None or r.get("points") == points) and \
+                    all(r.get(k) == x for k, x in match.items()):
+                return r
+        raise _Absent(f"{f} has no {case} row for {points} points")
+
+    machine = lambda: row("machine")  # noqa: E731
+    kernel = lambda n: row("kernel", n, block=32)  # noqa: E731
+    numba_rate = lambda: row("numba_prange", 2048)["points_per_s"]  # noqa: E731
+    put("date", lambda: date10(machine()["date"]))
+    put("device", lambda: machine()["device"])
+    put("jax", lambda: machine()["jax"])
+    put("threads", lambda: integer(machine()["cpu_threads"]))
+    for n in (240, 2048, 16384, 65536):
+        put(f"run_{n}", lambda n=n: sig(kernel(n)["run_s"], 3))
+    put("rate_65536", lambda: integer(round(kernel(65536)["points_per_s"])))
+    put("numba_rate", lambda: integer(round(numba_rate())))
+    put("over_numba_16384",
+        lambda: sig(16384 / numba_rate() / kernel(16384)["run_s"], 2))
+    put("verified_first_s", lambda: sig(row("verified", 2048)["first_call_s"], 3))
+    put("target_16384", lambda: verdict(kernel(16384)["run_s"] <= _t(targets, "gpu_b1_16k_s")))
+    put("target_240", lambda: verdict(kernel(240)["run_s"] <= _t(targets, "gpu_b1_240_s")))
+
+
 def collect(src: Sources, templates: dict) -> Values:
     v = Values()
     targets = templates.get("targets", {})
@@ -633,6 +663,7 @@ def collect(src: Sources, templates: dict) -> Values:
     _code(src, v)
     _simulate(src, v, targets)
     _b1(src, v)
+    _gpu(src, v, targets)
     _orbits(src, v, targets)
     _identify(src, v)
     _reproduction(src, v)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .._files import ChunkCheckpoint, jsonable, open_netcdf, save_netcdf_atomic
+from ._atlas_grid import grid_problem
 from ._sweep import sweep
 from ._sweep_problem import SweepConfig
 from ._verify import UNRESOLVED, VERDICT_FIELDS, VerifySettings
@@ -275,10 +276,28 @@ def _run_row(problem, x, config, verify, folder, shard):
     return {k: np.asarray(v)[0] for k, v in verdicts.items() if k in VERDICT_FIELDS}
 
 
+def _run_grid(problems, x, config, verify, folder, shard, progress, ckpt, prints) -> dict:
+    """{row: verdicts} of the rows not yet checkpointed, by one sweep of all their points;
+    empty where fewer than two rows are left or the rows cannot be stacked."""
+    pending = [j for j in range(len(problems))
+               if (d := ckpt.load(j)) is None or str(d.get("fingerprint")) != prints[j]]
+    problem = grid_problem([problems[j] for j in pending], x) if len(pending) > 1 else None
+    if problem is None:
+        return {}
+    tag = hashlib.sha256(",".join(prints[j] for j in pending).encode()).hexdigest()[:12]
+    res = sweep(problem, np.arange(len(pending) * x.size, dtype=float), config=config,
+                verify=verify, progress=progress,
+                checkpoint_dir=None if folder is None else folder / f"grid_{tag}", shard=shard)
+    out = {k: np.asarray(v)[0].reshape(len(pending), x.size)
+           for k, v in res.verdicts.items() if k in VERDICT_FIELDS}
+    return {j: {k: v[r] for k, v in out.items()} for r, j in enumerate(pending)}
+
+
 def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
           config: SweepConfig = SweepConfig(), verify: VerifySettings = VerifySettings(),
           checkpoint_dir=None, progress: bool = True, shard=False, row_bifurcations=None,
-          metadata: dict | None = None, x_label: str = "", y_label: str = "") -> Atlas:
+          metadata: dict | None = None, x_label: str = "", y_label: str = "",
+          batch: str = "auto") -> Atlas:
     """Verified motion and amplitude over the grid `y_values` x `x_values`.
 
     **Main arguments:**
@@ -296,7 +315,13 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
     - `row_bifurcations(y) -> [{"x", "kind", "amplitude", ...}]`: bifurcation points of row
       y (kind "fold", "period-doubling", "neimark-sacker" or "branch-point").
     - `metadata`: JSON-able entries kept in the atlas; `x_label`, `y_label`: names in words.
+    - `batch`: "rows" (one sweep per row), "grid" (the rows still to compute as one sweep
+      of all their points, `_atlas_grid.py`: one batch, sharded like any sweep; where the
+      rows differ in more than their arrays, row by row), or "auto" (the default: "grid"
+      where the sweep engine is the kernel, i.e. on a GPU, else "rows").
     """
+    if batch not in ("auto", "rows", "grid"):
+        raise ValueError(f"batch must be 'auto', 'rows' or 'grid', got {batch!r}")
     x = np.asarray(x_values, dtype=float)
     y = np.asarray(y_values, dtype=float)
     for name, v in (("x_values", x), ("y_values", y)):
@@ -314,12 +339,17 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
     from tqdm.auto import tqdm
 
     rows, bifs, computed = [], [], 0
-    for j in tqdm(range(y.size), unit="row", disable=not progress, desc=f"atlas {y_name}"):
+    grid = {}
+    if batch == "grid" or (batch == "auto" and p0.resolved_engine(config) == "kernel"):
+        grid = _run_grid(problems, x, config, verify, folder, shard, progress, ckpt, prints)
+    for j in tqdm(range(y.size), unit="row", disable=not progress or bool(grid),
+                  desc=f"atlas {y_name}"):
         data = ckpt.load(j)
         if data is None or str(data.get("fingerprint")) != prints[j]:
             computed += 1
             sub = None if folder is None else folder / f"row_{j:04d}"
-            verdicts = _run_row(problems[j], x, config, verify, sub, shard)
+            verdicts = grid[j] if j in grid else _run_row(problems[j], x, config, verify,
+                                                          sub, shard)
             found = [] if row_bifurcations is None else _check_bifurcations(
                 row_bifurcations(float(y[j])), y[j])
             data = {k: (v.astype(str) if v.dtype.kind in "USO" else v)
@@ -334,6 +364,7 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
     _, units = p0.labels()
     meta = {"created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "fingerprint": whole, "rows": int(y.size), "rows_computed_this_run": computed,
+            "rows_batched_as_one_grid": len(grid),
             "vector_field": getattr(p0.vector_field, "__qualname__", "")}
     meta.update(metadata or {})
     return Atlas(x_name=p0.param, x_unit=p0.unit, y_name=y_name, y_unit=y_unit, x=x, y=y,

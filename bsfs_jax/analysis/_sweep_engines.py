@@ -1,5 +1,6 @@
-"""The sweep engines: chunks of cold points (lockstep batches or a work queue, optionally
-sharded over devices) and chunks of continued points (a scan per lane, lanes vmapped).
+"""The sweep engines: chunks of cold points (lockstep batches, a work queue, or one kernel
+of per-point loops; optionally sharded over devices) and chunks of continued points (a scan
+per lane, lanes vmapped).
 
 Every engine returns the dict of `_point` with a leading points axis (cold) or leading
 (lanes, points) axes (continued).
@@ -10,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..solvers import integrate, result_code
+from ..solvers import integrate, integrate_lanes, result_code
 from ._sweep_point import _point, _reduce
 from ._sweep_problem import OK, SweepConfig
 
@@ -96,10 +97,35 @@ def _queue_points(problem, values, y0s, n_transient, cfg: SweepConfig):
         samples, state["start"], state["end"], state["status"], state["steps"], periods)
 
 
+def _kernel_points(problem, values, y0s, n_transient, cfg: SweepConfig):
+    """Cold points through one kernel in which each point runs its own adaptive loop
+    (`solvers.integrate_lanes`); without the tangent dynamics. The same two runs per point
+    as `_point` (transient, then the record), so the same outputs."""
+    settings = cfg.settings
+    N, n = values.shape[0], problem.n_states
+    P, spp = cfg.periods, cfg.samples_per_period
+    args, periods = jax.vmap(lambda v: problem.setup(problem.data, v))(values)
+    periods = jnp.broadcast_to(jnp.asarray(periods, dtype=float), (N,))
+    n_tr = jnp.broadcast_to(jnp.asarray(float(cfg.transient_periods) if n_transient is None
+                                        else n_transient, dtype=float), (N,))
+    args = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (N,) + jnp.shape(a)[1:])
+                                  if jnp.ndim(a) else jnp.broadcast_to(a, (N,)), args)
+    start, samples, end, codes, steps = integrate_lanes(
+        problem.component_field, y0s, args, n_tr * periods, periods, n_samples=P * spp,
+        samples_per_period=spp, rtol=settings.rtol, atol=settings.atol,
+        max_steps=settings.max_steps, block=int(cfg.kernel_block))
+    samples = samples.reshape(N, P, spp, n)
+    return jax.vmap(lambda *a: _reduce(problem, cfg, *a))(
+        samples, start, end, codes, steps.astype(int), periods)
+
+
 def _map_points(problem, values, y0s, n_transient, cfg: SweepConfig):
     """Cold points: values (N,), start states (N, n), transient periods (N,) or None
     (`cfg.transient_periods` for every point, kept unbatched)."""
-    if cfg.engine == "queue" and not cfg.lyapunov:
+    engine = problem.resolved_engine(cfg)
+    if engine == "kernel":
+        return _kernel_points(problem, values, y0s, n_transient, cfg)
+    if engine == "queue" and not cfg.lyapunov:
         if n_transient is None:
             n_transient = jnp.full(values.shape[0], float(cfg.transient_periods))
         return _queue_points(problem, values, y0s, n_transient, cfg)

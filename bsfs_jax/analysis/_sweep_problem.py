@@ -12,6 +12,7 @@ from ..solvers import RESULTS, SolverSettings, result_codes
 
 MODES = ("cold", "continued")
 DIRECTIONS = ("up", "down", "both")
+ENGINES = ("auto", "map", "queue", "kernel")
 OK = int(result_codes(RESULTS.successful))  # the code of a successful point in the arrays
 
 
@@ -33,10 +34,14 @@ class SweepConfig:
     - `batch_size`: points integrated in lockstep (vmap) inside `lax.map`; 0 = whole chunk.
     - `chunk_size`: points per jit call and per checkpoint file.
     - `window`: FFT window ("hann" or "rect").
-    - `engine` (cold mode): "map" (`lax.map` over lockstep batches of `batch_size`) or
+    - `engine` (cold mode): "map" (`lax.map` over lockstep batches of `batch_size`),
       "queue" (`batch_size` lanes integrating equal time slices and taking the next point
-      when done; avoids the lockstep waste when horizons differ, e.g. frequency sweeps;
-      without `lyapunov` only, falls back to "map" otherwise).
+      when done; without `lyapunov` only, falls back to "map" otherwise), "kernel" (one
+      Pallas kernel in which every point runs its own adaptive loop,
+      `solvers.integrate_lanes`: Triton on a GPU, interpret mode elsewhere, which is slow
+      and meant for tests; needs the problem's `component_field`, without `lyapunov`), or
+      "auto" (the default: "kernel" on a GPU where it applies, else "map").
+    - `kernel_block`: kernel engine: points per Triton program (one warp runs 32).
     - `max_slice_periods`: queue engine: at most this many periods per slice.
     - `settings`: `SolverSettings` (tolerances, max_steps, solver; default the fused
       Dormand-Prince 5(4) loop "dopri5-fused", or any diffrax solver name).
@@ -51,7 +56,8 @@ class SweepConfig:
     batch_size: int = 8
     chunk_size: int = 16
     window: str = "hann"
-    engine: str = "map"
+    engine: str = "auto"
+    kernel_block: int = 32
     max_slice_periods: int = 64
     # Sweeps are forward-only, so they default to the fused Dormand-Prince loop (about 3x
     # cheaper per step than diffrax's general loop here; cross-checked in tests/test_fused.py).
@@ -69,8 +75,11 @@ class SweepConfig:
                 f"transients ({limit}), got {self.lyapunov_align_periods}")
         if int(self.batch_size) < 0:
             raise ValueError(f"SweepConfig.batch_size must be >= 0, got {self.batch_size}")
-        if self.engine not in ("map", "queue"):
-            raise ValueError(f"SweepConfig.engine must be 'map' or 'queue', got {self.engine!r}")
+        if self.engine not in ENGINES:
+            raise ValueError(f"SweepConfig.engine must be one of {', '.join(ENGINES)}, got "
+                             f"{self.engine!r}")
+        if int(self.kernel_block) < 1:
+            raise ValueError(f"SweepConfig.kernel_block must be >= 1, got {self.kernel_block}")
         if self.window not in ("hann", "rect"):
             raise ValueError(f"SweepConfig.window must be 'hann' or 'rect', got {self.window!r}")
 
@@ -91,6 +100,9 @@ class SweepProblem(eqx.Module):
     - `param`, `unit`: the swept parameter's name and unit (for files and plots).
     - `observe`: index of the state coordinate whose spectrum and amplitude are reported.
     - `state_names`, `state_units`, `time_unit`: labels for files and plots.
+    - `component_field`: the same field on a tuple of state components, elementwise
+      (`field(t, ys, args) -> tuple`, see `solvers.integrate_lanes`), for the kernel
+      engine; None: that engine is not available for this problem.
     """
 
     vector_field: Callable = eqx.field(static=True)
@@ -103,6 +115,7 @@ class SweepProblem(eqx.Module):
     state_names: tuple = eqx.field(static=True, default=())
     state_units: tuple = eqx.field(static=True, default=())
     time_unit: str = eqx.field(static=True, default="s")
+    component_field: Callable | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         n = self.y0.shape[-1] if self.y0.ndim else 0
@@ -119,6 +132,19 @@ class SweepProblem(eqx.Module):
     @property
     def n_states(self) -> int:
         return int(self.y0.shape[0])
+
+    def resolved_engine(self, config: "SweepConfig") -> str:
+        """The cold-sweep engine `config.engine` means for this problem on this device."""
+        fits = self.component_field is not None and not config.lyapunov
+        if config.engine == "kernel":
+            if not fits:
+                raise ValueError(
+                    "SweepConfig(engine='kernel') needs a problem with a component_field and "
+                    "lyapunov off; use engine='map' or 'auto'")
+            return "kernel"
+        if config.engine == "auto":
+            return "kernel" if fits and jax.default_backend() == "gpu" else "map"
+        return config.engine
 
     def labels(self):
         n = self.n_states

@@ -70,8 +70,7 @@ def register(sub) -> None:
                    "diffrax solver: tsit5, dopri5, dopri8, kvaerno5")
     p.add_argument("--batch", type=ui.count(0, 10**4), default=8,
                    help="points integrated in lockstep (vmap; 0: the whole chunk)")
-    p.add_argument("--chunk", type=ui.count(1, 10**5), default=32,
-                   help="points per checkpoint chunk")
+    ui.add_engine_args(p)
     p.add_argument("--shard", action="store_true",
                    help="shard cold-mode chunks over all JAX devices")
     p.add_argument("--no-progress", action="store_true")
@@ -115,7 +114,7 @@ def run(args) -> int:
             transient_periods=200 if args.transient == "auto" else transient,
             continued_transient_periods=args.continued_transient, periods=args.periods,
             samples_per_period=args.samples_per_period, lyapunov=args.lyapunov,
-            batch_size=args.batch, chunk_size=args.chunk,
+            batch_size=args.batch, **ui.engine_settings(args),
             settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
     except ValueError as exc:
         raise ui.CLIError(str(exc)) from None

@@ -231,3 +231,28 @@ def validate_sweep_values(params, key: str, values, flag: str):
     from ..params import validate
 
     validate(params.replace(key, np.asarray(values, dtype=float)), source=f"{flag} {key}")
+
+
+def add_engine_args(parser, chunk_help: str = "points per checkpoint chunk") -> None:
+    """--engine and --chunk of the cold sweeps (`sweep`, `map`)."""
+    parser.add_argument("--engine", choices=("auto", "kernel", "vmap", "queue"), default="auto",
+                        help="how cold points are integrated: 'kernel' (one kernel, each "
+                        "point its own adaptive loop; Triton on a GPU, interpret mode "
+                        "elsewhere: slow, for testing), 'vmap' (lockstep batches of "
+                        "--batch), 'queue' (a work queue of --batch lanes), 'auto' (default: "
+                        "kernel on a GPU, vmap elsewhere)")
+    parser.add_argument("--chunk", type=count(1, 10**6), default=None,
+                        help=f"{chunk_help} (default 32; 8192 with the kernel engine)")
+
+
+def engine_settings(args) -> dict:
+    """SweepConfig's `engine` and `chunk_size` from --engine, --chunk (and --lyapunov)."""
+    import jax
+
+    engine = {"vmap": "map"}.get(args.engine, args.engine)
+    if engine == "kernel" and getattr(args, "lyapunov", False):
+        raise CLIError("--engine kernel does not integrate the tangent dynamics: drop "
+                       "--lyapunov or use --engine vmap")
+    kernel = engine == "kernel" or (engine == "auto" and jax.default_backend() == "gpu"
+                                    and not getattr(args, "lyapunov", False))
+    return {"engine": engine, "chunk_size": args.chunk or (8192 if kernel else 32)}

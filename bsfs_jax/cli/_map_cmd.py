@@ -67,9 +67,12 @@ def register(sub) -> None:
                    choices=("dopri5-fused", "tsit5", "dopri5", "dopri8", "kvaerno5"))
     p.add_argument("--batch", type=ui.count(0, 10**4), default=8,
                    help="points integrated in lockstep (0: the whole chunk)")
-    p.add_argument("--chunk", type=ui.count(1, 10**5), default=32,
-                   help="points per checkpoint chunk")
+    ui.add_engine_args(p)
     p.add_argument("--shard", action="store_true", help="shard rows over all JAX devices")
+    p.add_argument("--batch-atlas", choices=("auto", "rows", "grid"), default="auto",
+                   help="'grid': every point of the atlas in one sweep (one batch, sharded "
+                   "with --shard); 'rows': one sweep per row; 'auto' (default): grid with "
+                   "the kernel engine (on a GPU), else rows")
     p.add_argument("--max-period", type=ui.count(1, 1000), default=16,
                    help="largest n of period-n orbits looked for (16)")
     p.add_argument("--max-blocks", type=ui.count(1, 1000), default=8,
@@ -237,7 +240,7 @@ def run(args) -> int:
             transient_periods=args.transient, periods=args.periods,
             samples_per_period=args.samples_per_period, lyapunov=args.lyapunov,
             lyapunov_align_periods=min(16, args.transient - 1), batch_size=args.batch,
-            chunk_size=args.chunk,
+            **ui.engine_settings(args),
             settings=SolverSettings(args.rtol, args.atol, args.max_steps, args.solver))
         y_unit = unit.get(args.y) or parameter_unit(args.y)
     except ValueError as exc:
@@ -252,6 +255,7 @@ def run(args) -> int:
             row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,
             verify=verify, checkpoint_dir=folder / "checkpoint",
             progress=ui.progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
+            batch=args.batch_atlas,
             x_label=_words(args.x), y_label=_words(args.y),
             metadata={"parameters": source, "overrides": list(args.set), **{
                 k: v for k, v in ((FREQUENCY, args.frequency), (FORCE, args.force))

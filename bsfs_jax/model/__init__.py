@@ -5,6 +5,7 @@ from ._dynamics import joint_forces as joint_forces
 from ._dynamics import mechanical_energy as mechanical_energy
 from ._dynamics import restoring_forces as restoring_forces
 from ._dynamics import vector_field as vector_field
+from ._dynamics import vector_field_components as vector_field_components
 from ._forcing import HarmonicForcing as HarmonicForcing
 from ._forcing import Sinusoid as Sinusoid
 from ._system import System as System

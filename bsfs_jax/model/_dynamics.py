@@ -54,11 +54,18 @@ def accelerations(system: System, x, v, force):
     return jnp.stack(_accelerations(system, *_split(x), *_split(v), force), axis=-1)
 
 
-def vector_field(t, y, args):
-    """diffrax vector field f(t, y, args) with args = (system, forcing)."""
+def vector_field_components(t, y, args):
+    """The vector field on a tuple of the six state components, elementwise (each component
+    any shape; `args`' leaves may be per-lane arrays, or tuples for vector fields): the
+    form the per-lane integrator kernel (`solvers.integrate_lanes`) runs."""
     system, forcing = args
     acc = _accelerations(system, y[0], y[1], y[2], y[3], y[4], y[5], forcing(t))
-    return jnp.stack([y[3], y[4], y[5], *acc])
+    return (y[3], y[4], y[5], *acc)
+
+
+def vector_field(t, y, args):
+    """diffrax vector field f(t, y, args) with args = (system, forcing)."""
+    return jnp.stack(vector_field_components(t, y, args))
 
 
 def mechanical_energy(system: System, y):

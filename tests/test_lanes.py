@@ -1,0 +1,203 @@
+"""The per-lane integrator kernel (`solvers.integrate_lanes`, Pallas), in interpret mode.
+
+On a CPU the kernel runs through Pallas' interpreter, the same kernel body that Triton
+compiles on a GPU (the GPU figures are in BENCHMARKS.md). Checked against the fused loop
+it replaces, a closed form, the solver's failure codes, and the sweep engines.
+"""
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsfs_jax import preset
+from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep
+from bsfs_jax.model import vector_field_components
+from bsfs_jax.solvers import RESULTS, SolverSettings, integrate, integrate_lanes, result_codes
+
+ROOT = Path(__file__).resolve().parents[1]
+TOL = dict(rtol=1e-8, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return bsfs_problem(preset("default"), "frequency_hz", force_n=5000.0)
+
+
+def _lanes_setup(problem, freqs):
+    args, periods = jax.vmap(lambda v: problem.setup(problem.data, v))(jnp.asarray(freqs))
+    return args, jnp.asarray(periods, dtype=float)
+
+
+def _fused_point(problem, args, period, t_rec, n_samples, spp, rtol, atol):
+    """The fused loop's two runs (transient, then the record), as the sweep makes them."""
+    st = SolverSettings(rtol=rtol, atol=atol, max_steps=10**6, solver="dopri5-fused")
+    r1 = integrate(problem.vector_field, jnp.zeros(6), args, 0.0, t_rec, jnp.stack([t_rec]), st)
+    ts = t_rec + period * jnp.arange(1, n_samples + 1, dtype=float) / spp
+    r2 = integrate(problem.vector_field, r1.ys[-1], args, t_rec, ts[-1], ts, st)
+    return r1.ys[-1], r2.ys, int(r1.num_steps + r2.num_steps)
+
+
+def test_kernel_matches_the_fused_loop_on_the_ball_screw(problem):
+    """Five lanes in blocks of 4 (one block padded): the same method and controller as the
+    fused loop, so the same step counts to a few per mille and samples within the
+    integrator's own error; both against a run at rtol 1e-12."""
+    freqs = np.array([900.0, 1500.0, 2500.0, 4000.0, 3000.0])
+    args, periods = _lanes_setup(problem, freqs)
+    n_tr, P, spp = 10, 4, 4
+    start, samples, end, codes, steps = integrate_lanes(
+        vector_field_components, jnp.zeros((5, 6)), args, n_tr * periods, periods,
+        n_samples=P * spp, samples_per_period=spp, max_steps=10**6, block=4,
+        backend="interpret", **TOL)
+    assert np.all(np.asarray(codes) == int(result_codes(RESULTS.successful)))
+    for i in range(5):
+        a, per = jax.tree_util.tree_map(lambda x: x[i], (args, periods))
+        y1, ys, n = _fused_point(problem, a, per, n_tr * per, P * spp, spp, **TOL)
+        _, ref, _ = _fused_point(problem, a, per, n_tr * per, P * spp, spp, 1e-12, 1e-16)
+        scale = np.max(np.abs(np.asarray(ref)), axis=0)
+        err_kernel = np.max(np.abs(np.asarray(samples[i]) - ref) / scale)
+        err_fused = np.max(np.abs(np.asarray(ys) - ref) / scale)
+        assert err_kernel < 5e-6 and err_kernel < 5 * err_fused + 1e-7, (freqs[i], err_kernel,
+                                                                          err_fused)
+        assert np.max(np.abs(np.asarray(samples[i]) - ys) / scale) < 5e-6
+        np.testing.assert_allclose(np.asarray(start[i]), np.asarray(y1),
+                                   atol=5e-6 * float(np.max(scale)))
+        np.testing.assert_array_equal(np.asarray(end[i]), np.asarray(samples[i, -1]))
+        assert abs(int(steps[i]) - n) <= 0.01 * n, (int(steps[i]), n)
+
+
+def _oscillator(t, y, args):
+    """x'' + 2 zeta w0 x' + w0^2 x = f0 cos(omega t), on components."""
+    zeta, w0, f0, omega = args
+    return y[1], f0 * jnp.cos(omega * t) - 2.0 * zeta * w0 * y[1] - w0 * w0 * y[0]
+
+
+def test_kernel_follows_the_closed_form_steady_state_of_a_linear_oscillator():
+    """Lanes started on the closed-form steady state stay on it (an independent answer)."""
+    zeta = jnp.array([0.05, 0.02, 0.1])
+    w0 = jnp.array([1.0, 2.0, 3.0])
+    omega = jnp.array([1.3, 1.0, 2.5])
+    f0 = jnp.ones(3)
+    h = f0 / (w0 * w0 - omega * omega + 2j * zeta * w0 * omega)
+    y0 = jnp.stack([jnp.real(h), jnp.real(1j * omega * h)], axis=1)
+    period = 2 * jnp.pi / omega
+    spp, P = 8, 3
+    _, samples, _, codes, _ = integrate_lanes(
+        _oscillator, y0, (zeta, w0, f0, omega), 5 * period, period, n_samples=P * spp,
+        samples_per_period=spp, max_steps=10**5, block=32, backend="interpret",
+        rtol=1e-10, atol=1e-13)
+    assert np.all(np.asarray(codes) == 0)
+    t = 5 * period[:, None] + period[:, None] * (jnp.arange(1, P * spp + 1) / spp)[None, :]
+    x = jnp.real(h[:, None] * jnp.exp(1j * omega[:, None] * t))
+    np.testing.assert_allclose(np.asarray(samples[:, :, 0]), np.asarray(x),
+                               atol=1e-7 * float(jnp.max(jnp.abs(h))))
+
+
+def test_kernel_reports_failures_per_lane_and_leaves_the_others_alone():
+    """A lane out of steps and a lane with a NaN start get their `RESULTS` codes; a good
+    lane of the same block gives what it gives alone."""
+    args = (jnp.array([0.05, 0.05, 0.05]), jnp.ones(3), jnp.ones(3), jnp.ones(3))
+    y0 = jnp.array([[0.1, 0.0], [0.1, 0.0], [jnp.nan, 0.0]])
+    period = jnp.full(3, 2 * jnp.pi)
+    run = lambda y, a, max_steps: integrate_lanes(
+        _oscillator, y, a, 50 * period[: y.shape[0]], period[: y.shape[0]], n_samples=4,
+        samples_per_period=2, max_steps=max_steps, backend="interpret", **TOL)
+    _, samples, _, codes, steps = run(y0, args, 10**5)
+    codes = np.asarray(codes)
+    assert codes[0] == int(result_codes(RESULTS.successful))
+    assert codes[2] == int(result_codes(RESULTS.invalid_input))
+    alone = run(y0[:1], jax.tree_util.tree_map(lambda a: a[:1], args), 10**5)
+    np.testing.assert_array_equal(np.asarray(samples[0]), np.asarray(alone[1][0]))
+    _, _, _, codes, steps = run(y0[:2], jax.tree_util.tree_map(lambda a: a[:2], args), 50)
+    assert np.all(np.asarray(codes) == int(result_codes(RESULTS.max_steps_reached)))
+    assert np.all(np.asarray(steps) == 50)
+
+
+def test_kernel_refuses_args_without_a_lane_axis():
+    with pytest.raises(ValueError, match="leading axis of 3 lanes"):
+        integrate_lanes(_oscillator, jnp.zeros((3, 2)), (1.0, jnp.ones(3), jnp.ones(3),
+                                                         jnp.ones(3)),
+                        jnp.ones(3), jnp.ones(3), n_samples=1, samples_per_period=1,
+                        max_steps=10, backend="interpret", **TOL)
+
+
+def test_sweep_kernel_engine_gives_the_map_engines_answers(problem):
+    """`SweepConfig(engine="kernel")` against the vmapped fused loop, with per-point
+    transients (as the verifier's sampling runs use)."""
+    freqs = np.array([800.0, 1200.0, 2000.0, 3500.0])
+    kw = dict(transient_periods=20, periods=4, samples_per_period=8, lyapunov=False,
+              chunk_size=8, kernel_block=4)
+    out = {e: sweep(problem, freqs, config=SweepConfig(engine=e, **kw), progress=False,
+                    transient=np.array([12, 20, 16, 30]))
+           for e in ("map", "kernel")}
+    a, b = out["map"], out["kernel"]
+    amp = np.asarray(a.amplitude)
+    assert np.max(np.abs(np.asarray(b.amplitude) - amp) / amp.max(axis=-2)) < 5e-6
+    assert np.nanmax(np.abs(np.asarray(b.strobe) - np.asarray(a.strobe))) < \
+        5e-6 * np.nanmax(np.abs(np.asarray(a.strobe)))
+    np.testing.assert_array_equal(np.asarray(b.failed), False)
+    steps_a, steps_b = np.asarray(a.num_steps), np.asarray(b.num_steps)
+    assert np.all(np.abs(steps_b - steps_a) <= 0.01 * steps_a)
+
+
+def test_engine_choice(problem):
+    cfg = SweepConfig(lyapunov=False)
+    assert cfg.engine == "auto"
+    expected = "kernel" if jax.default_backend() == "gpu" else "map"
+    assert problem.resolved_engine(cfg) == expected
+    assert problem.resolved_engine(SweepConfig(lyapunov=True)) == "map"
+    with pytest.raises(ValueError, match="lyapunov off"):
+        problem.resolved_engine(SweepConfig(engine="kernel", lyapunov=True))
+    with pytest.raises(ValueError, match="engine must be one of"):
+        SweepConfig(engine="warp")
+
+
+def test_cli_sweep_with_the_kernel_engine(tmp_path, capsys):
+    from bsfs_jax.cli import main
+
+    out = tmp_path / "sweep"
+    rc = main(["sweep", "--start", "2000", "--stop", "3000", "--num", "2", "--engine",
+               "kernel", "--transient", "20", "--periods", "4", "--no-verify",
+               "--no-progress", "--out", str(out)])
+    assert rc == 0 and (out / "sweep.nc").exists()
+    rc = main(["sweep", "--start", "2000", "--stop", "3000", "--num", "2", "--engine",
+               "kernel", "--lyapunov", "--out", str(tmp_path / "no")])
+    assert rc != 0 and not (tmp_path / "no").exists()
+    assert "--engine kernel does not integrate the tangent dynamics" in capsys.readouterr().err
+
+
+def test_kernel_engine_sharded_over_host_devices():
+    """A sharded cold sweep (two CPU devices, `jax.shard_map`) runs the kernel on each
+    device's points and gives the unsharded answer."""
+    code = textwrap.dedent("""
+        import numpy as np, jax
+        jax.config.update("jax_enable_x64", True)
+        from bsfs_jax import preset
+        from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep
+        assert len(jax.devices()) == 2
+        p = bsfs_problem(preset("default"), "frequency_hz", force_n=5000.0)
+        cfg = SweepConfig(transient_periods=10, periods=2, samples_per_period=4,
+                          lyapunov=False, engine="kernel", chunk_size=4, kernel_block=2)
+        f = np.array([1500.0, 2000.0, 2500.0, 3000.0])
+        a = sweep(p, f, config=cfg, progress=False, shard=True)
+        b = sweep(p, f, config=cfg, progress=False)
+        assert a.metadata["sharded_over_devices"] == 2, a.metadata["sharded_over_devices"]
+        # Not bit-equal: the two programs round differently (XLA fuses them differently),
+        # and the step-size controller amplifies rounding to the integrator's error level.
+        sa, sb = np.asarray(a.strobe), np.asarray(b.strobe)
+        assert np.max(np.abs(sa - sb)) < 5e-6 * np.max(np.abs(sb)), np.max(np.abs(sa - sb))
+        na, nb = np.asarray(a.num_steps), np.asarray(b.num_steps)
+        assert np.all(np.abs(na - nb) <= 0.02 * nb), (na, nb)
+        print("OK")
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               PYTHONPATH=str(ROOT))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                       cwd=ROOT, timeout=600)
+    assert r.returncode == 0 and "OK" in r.stdout, r.stderr[-3000:]
