@@ -230,3 +230,25 @@ def test_atlas_as_one_grid_gives_the_rows_answers(duffing_atlas, tmp_path):
     np.testing.assert_array_equal(again.verdicts["motion"], runs["map"].verdicts["motion"])
     with pytest.raises(ValueError, match="batch must be"):
         atlas(row_problem, GAMMAS, OMEGAS, y_name="omega", batch="columns")
+
+
+def test_cli_map_row_continuation_by_harmonic_balance_finds_the_shooting_folds(tmp_path):
+    """`bsfs map --method hb` (what auto picks where its error estimate passes) locates the
+    row's folds where `--method shooting` does (the 5000 N branch over 1000-1300 Hz)."""
+    from bsfs_jax.cli import main
+
+    found = {}
+    for method in ("hb", "shooting"):
+        out = tmp_path / method
+        argv = ["map", "--x", "frequency_hz", "--x-start", "1000", "--x-stop", "1300",
+                "--x-num", "2", "--y", "force_n", "--y-start", "5000", "--y-stop", "5001",
+                "--y-num", "1", "--method", method, "--transient", "40", "--periods", "8",
+                "--samples-per-period", "16", "--max-blocks", "1", "--block-periods", "64",
+                "--no-progress", "--out", str(out)]
+        assert main(argv) == 0
+        s = json.loads((out / "summary.json").read_text())
+        assert not s["notes"], s["notes"]
+        found[method] = sorted(b["x"] for b in s["bifurcations"] if b["kind"] == "fold")
+    assert len(found["shooting"]) >= 2, found
+    assert len(found["hb"]) == len(found["shooting"]), found
+    np.testing.assert_allclose(found["hb"], found["shooting"], rtol=1e-5)

@@ -57,6 +57,31 @@ def register(sub) -> None:
     p.set_defaults(func=run_continue)
 
 
+def continue_by_method(run, method: str, hb, shooting, hb_tol: float):
+    """(branch, notes) of `run(method)` for --method shooting, hb or auto (harmonic
+    balance where it reaches the end of the interval with its error estimate within
+    `hb_tol` at every orbit, else shooting, with a note saying why)."""
+    from ..solvers import SolverError
+
+    notes = []
+    if method == "shooting":
+        return run(shooting), notes
+    try:
+        branch = run(hb)
+        bad = branch.info["stop_reason"] != "left the parameter interval" or not bool(
+            np.all(branch.error_estimates <= hb_tol))
+    except SolverError as exc:
+        if method == "hb":
+            raise
+        branch, bad = None, True
+        notes.append(f"harmonic balance failed ({exc})")
+    if bad and method == "auto":
+        notes.append("harmonic balance did not pass its error estimate along the whole "
+                      "branch: used shooting")
+        branch = run(shooting)
+    return branch, notes
+
+
 def _cross_check_folds(family, branch, method, settings, args):
     """Locate each fold again with `method`, by a short continuation across it."""
     from ..solvers import continue_orbits
@@ -98,7 +123,7 @@ def run_continue(args) -> int:
     from ..machine import bsfs_family, simulate
     from ..params import params_summary
     from ..plotting import plot_continuation
-    from ..solvers import HarmonicBalance, Shooting, SolverError, SolverSettings, continue_orbits
+    from ..solvers import HarmonicBalance, Shooting, SolverSettings, continue_orbits
 
     if not (args.start > 0 and args.stop > 0) or args.start == args.stop:
         raise ui.CLIError(f"--start and --stop must be positive and differ, got {args.start} "
@@ -133,23 +158,7 @@ def run_continue(args) -> int:
                                amplitude_index=dof, progress=ui.progress_enabled(args))
 
     t_cont = time.perf_counter()
-    notes = []
-    if args.method == "shooting":
-        branch = run(shooting)
-    else:
-        try:
-            branch = run(hb)
-            bad = branch.info["stop_reason"] != "left the parameter interval" or not bool(
-                np.all(branch.error_estimates <= args.hb_tol))
-        except SolverError as exc:
-            if args.method == "hb":
-                raise
-            branch, bad = None, True
-            notes.append(f"harmonic balance failed ({exc})")
-        if bad and args.method == "auto":
-            notes.append("harmonic balance did not pass its error estimate along the whole "
-                         "branch: used shooting")
-            branch = run(shooting)
+    branch, notes = continue_by_method(run, args.method, hb, shooting, args.hb_tol)
     t_cont = time.perf_counter() - t_cont
     primary = branch.method
     other = shooting if isinstance(primary, HarmonicBalance) else HarmonicBalance(

@@ -87,6 +87,14 @@ def register(sub) -> None:
     p.add_argument("--max-points", type=ui.count(2, 10**6), default=200,
                    help="most orbits per row continuation (200); a row whose continuation "
                    "stops early is named in summary.json's notes")
+    p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
+                   help="orbit method of the row continuations: harmonic balance (hb), "
+                   "shooting, or auto (default: hb where its error estimate passes along "
+                   "the whole row, else shooting), as `bsfs continue`")
+    p.add_argument("--harmonics", type=ui.count(1, 1024), default=8,
+                   help="starting harmonic count for hb (8; doubled where needed)")
+    p.add_argument("--hb-tol", type=ui.positive_float, default=1e-5,
+                   help="hb error tolerance relative to the orbit size (1e-5)")
     p.add_argument("--band", type=ui.finite_float, nargs=2, metavar=("LO", "HI"),
                    help="continue each row's branch over this frequency band only (default: "
                    "the whole x range)")
@@ -204,7 +212,8 @@ def run(args) -> int:
 
     def row_bifurcations(y):
         from ..machine import bsfs_family, simulate
-        from ..solvers import Shooting, continue_orbits
+        from ..solvers import HarmonicBalance, Shooting, continue_orbits
+        from ._continue_cmd import continue_by_method
 
         p, _, force = row(y)
         try:
@@ -212,9 +221,15 @@ def run(args) -> int:
             guess = simulate(p, frequency_hz=lo, force_n=force,
                              transient_periods=args.transient, periods=1,
                              samples_per_period=64).final_state
-            branch = continue_orbits(bsfs_family(p, force), guess, lo, hi,
-                                     method=Shooting(), ds=args.ds,
-                                     max_points=args.max_points, amplitude_index=2)
+            family = bsfs_family(p, force)
+            branch, why = continue_by_method(
+                lambda method: continue_orbits(family, guess, lo, hi, method=method,
+                                               ds=args.ds, max_points=args.max_points,
+                                               amplitude_index=2),
+                args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol),
+                Shooting(), args.hb_tol)
+            for w in why:
+                notes.append(f"{args.y} = {y:g}: {w}")
         except Exception as exc:  # noqa: BLE001 - a row without curves is reported
             notes.append(f"{args.y} = {y:g}: continuation failed ({exc})")
             print(f"bsfs map: warning: {notes[-1]}", flush=True)
