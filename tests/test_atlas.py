@@ -234,14 +234,15 @@ def test_atlas_as_one_grid_gives_the_rows_answers(duffing_atlas, tmp_path):
 
 def test_cli_map_row_continuation_by_harmonic_balance_finds_the_shooting_folds(tmp_path):
     """`bsfs map --method hb` (what auto picks where its error estimate passes) locates the
-    row's folds where `--method shooting` does (the 5000 N branch over 1000-1300 Hz)."""
+    row's folds where `--method shooting` does (the 100 N branch over 1050-1150 Hz, whose
+    folds near 1088 and 1090 Hz the forecast's coverage study uses)."""
     from bsfs_jax.cli import main
 
     found = {}
     for method in ("hb", "shooting"):
         out = tmp_path / method
-        argv = ["map", "--x", "frequency_hz", "--x-start", "1000", "--x-stop", "1300",
-                "--x-num", "2", "--y", "force_n", "--y-start", "5000", "--y-stop", "5001",
+        argv = ["map", "--x", "frequency_hz", "--x-start", "1050", "--x-stop", "1150",
+                "--x-num", "2", "--y", "force_n", "--y-start", "100", "--y-stop", "101",
                 "--y-num", "1", "--method", method, "--transient", "40", "--periods", "8",
                 "--samples-per-period", "16", "--max-blocks", "1", "--block-periods", "64",
                 "--no-progress", "--out", str(out)]

@@ -87,10 +87,12 @@ def register(sub) -> None:
     p.add_argument("--max-points", type=ui.count(2, 10**6), default=200,
                    help="most orbits per row continuation (200); a row whose continuation "
                    "stops early is named in summary.json's notes")
-    p.add_argument("--method", choices=("auto", "hb", "shooting"), default="auto",
-                   help="orbit method of the row continuations: harmonic balance (hb), "
-                   "shooting, or auto (default: hb where its error estimate passes along "
-                   "the whole row, else shooting), as `bsfs continue`")
+    p.add_argument("--method", choices=("auto", "hb", "shooting"), default="shooting",
+                   help="orbit method of the row continuations: shooting (default), "
+                   "harmonic balance (hb), or auto (hb where its error estimate passes "
+                   "along the whole row, else shooting), as `bsfs continue`; on the "
+                   "README's 16 x 8 example hb was slower (275 s against 164 s: many "
+                   "harmonics where the joints lose contact)")
     p.add_argument("--harmonics", type=ui.count(1, 1024), default=8,
                    help="starting harmonic count for hb (8; doubled where needed)")
     p.add_argument("--hb-tol", type=ui.positive_float, default=1e-5,
