@@ -104,12 +104,11 @@ def _kernel_points(problem, values, y0s, n_transient, cfg: SweepConfig):
     settings = cfg.settings
     N, n = values.shape[0], problem.n_states
     P, spp = cfg.periods, cfg.samples_per_period
+    # vmap gives every leaf of args a leading axis of N points, as the kernel needs.
     args, periods = jax.vmap(lambda v: problem.setup(problem.data, v))(values)
-    periods = jnp.broadcast_to(jnp.asarray(periods, dtype=float), (N,))
+    periods = jnp.asarray(periods, dtype=float)
     n_tr = jnp.broadcast_to(jnp.asarray(float(cfg.transient_periods) if n_transient is None
                                         else n_transient, dtype=float), (N,))
-    args = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (N,) + jnp.shape(a)[1:])
-                                  if jnp.ndim(a) else jnp.broadcast_to(a, (N,)), args)
     start, samples, end, codes, steps = integrate_lanes(
         problem.component_field, y0s, args, n_tr * periods, periods, n_samples=P * spp,
         samples_per_period=spp, rtol=settings.rtol, atol=settings.atol,

@@ -40,6 +40,27 @@ def _rms(x):
     return jnp.sqrt(jnp.mean(x * x))
 
 
+def first_step(d0, d1, span):
+    """The initial step from d0 = RMS(y0 / scale), d1 = RMS(f0 / scale) (Hairer-Wanner's
+    first guess, as diffrax), at most `span`; elementwise (shared with `_lanes.py`)."""
+    h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / jnp.where(d1 > 0, d1, 1.0))
+    return jnp.minimum(h0, span)
+
+
+def controller(en, finite, h, h_eff, clipped):
+    """(accept, next step) of the I-controller from the error norm `en` of a step of
+    length `h_eff` (`h` before clipping onto a save time); elementwise (shared with
+    `_lanes.py`)."""
+    accept = finite & (en <= 1.0)
+    factor = jnp.where(finite, jnp.clip(0.9 * jnp.maximum(en, 1e-10) ** (-0.2), 0.2, 10.0),
+                       0.2)
+    h_prop = h_eff * factor
+    # After a step shortened to hit a save time, do not let the short step shrink h.
+    h_new = jnp.where(accept & clipped, jnp.maximum(h_prop, jnp.minimum(h, h_prop * 10)),
+                      h_prop)
+    return accept, h_new
+
+
 def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
     """(ys at ts, result, num_steps): `result` a `RESULTS` item (`successful`,
     `max_steps_reached`, `non_finite` or `step_size_failed`).
@@ -55,9 +76,7 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
     eps = 64 * jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(t1), jnp.abs(t0))
     f0 = vector_field(t0, y0, args)
     scale0 = atol + rtol * jnp.abs(y0)
-    d0, d1 = _rms(y0 / scale0), _rms(f0 / scale0)
-    h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / jnp.where(d1 > 0, d1, 1.0))
-    h0 = jnp.minimum(h0, t1 - t0)
+    h0 = first_step(_rms(y0 / scale0), _rms(f0 / scale0), t1 - t0)
 
     def step(s, target):
         t, y, h, k1, n, result = s
@@ -72,13 +91,7 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps):
         scale = atol + rtol * jnp.maximum(jnp.abs(y), jnp.abs(y_new))
         en = _rms(err / scale)
         finite = jnp.isfinite(en) & jnp.all(jnp.isfinite(y_new))
-        accept = finite & (en <= 1.0)
-        factor = jnp.where(finite, jnp.clip(0.9 * jnp.maximum(en, 1e-10) ** (-0.2), 0.2, 10.0),
-                           0.2)
-        h_prop = h_eff * factor
-        # After a step shortened to hit a save time, do not let the short step shrink h.
-        h_new = jnp.where(accept & clipped, jnp.maximum(h_prop, jnp.minimum(h, h_prop * 10)),
-                          h_prop)
+        accept, h_new = controller(en, finite, h, h_eff, clipped)
         t_new = jnp.where(clipped, target, t + h_eff)
         # A step size that underflows, or is NaN (a non-finite start), ends the run.
         tiny = ~(h_new >= 1e-14 * jnp.maximum(jnp.abs(t), 1e-3))

@@ -30,7 +30,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ._fused import _A, _B5, _C, _E
+from ._fused import _A, _B5, _C, _E, controller, first_step
 from ._results import RESULTS, result_codes
 
 _OK = int(result_codes(RESULTS.successful))
@@ -85,18 +85,15 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
     def f(t, y):
         return tuple(jnp.asarray(v, dtype=float) + zero for v in field(t, y, args))
 
-    def first_step(t0, t1, y, f0):
+    def restart_step(t0, t1, y, f0):
         scale = [atol + rtol * jnp.abs(v) for v in y]
-        d0 = _rms([v / s for v, s in zip(y, scale)])
-        d1 = _rms([v / s for v, s in zip(f0, scale)])
-        h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6,
-                       0.01 * d0 / jnp.where(d1 > 0, d1, 1.0))
-        return jnp.minimum(h0, t1 - t0)
+        return first_step(_rms([v / sc for v, sc in zip(y, scale)]),
+                          _rms([v / sc for v, sc in zip(f0, scale)]), t1 - t0)
 
     finite0 = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in y0])
     f0 = f(zero, y0)
     code0 = jnp.where(finite0, _OK, _INVALID).astype(jnp.int32)
-    state = dict(t=zero, y=y0, h=first_step(zero, t_rec, y0, f0), k1=f0,
+    state = dict(t=zero, y=y0, h=restart_step(zero, t_rec, y0, f0), k1=f0,
                  n=jnp.zeros(block, jnp.int32), total=jnp.zeros(block, jnp.int32),
                  code=code0, phase=jnp.zeros(block, jnp.int32),
                  k=jnp.ones(block, jnp.int32), active=finite0)
@@ -123,12 +120,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
                    for e, a, b in zip(err, y, y_new)])
         finite_new = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in y_new])
         finite = jnp.isfinite(en) & finite_new
-        accept = finite & (en <= 1.0)
-        factor = jnp.where(finite, jnp.clip(0.9 * jnp.maximum(en, 1e-10) ** (-0.2), 0.2, 10.0),
-                           0.2)
-        h_prop = h_eff * factor
-        h_new = jnp.where(accept & clipped, jnp.maximum(h_prop, jnp.minimum(h, h_prop * 10)),
-                          h_prop)
+        accept, h_new = controller(en, finite, h, h_eff, clipped)
         t_new = jnp.where(clipped, target, t + h_eff)
         y_fin = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in y])
         tiny = ~(h_new >= 1e-14 * jnp.maximum(jnp.abs(t), 1e-3))
@@ -148,7 +140,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
             for c in range(n):
                 plgpu.store(start_ref.at[c * n_pad + lanes], y_out[c], mask=switch)
             f_rec = f(t_out, y_out)
-            return f_rec, first_step(t_out, t_end, y_out, f_rec)
+            return f_rec, restart_step(t_out, t_end, y_out, f_rec)
 
         # Work that only some steps need sits in a `cond`, skipped where no lane of the
         # block needs it, rather than computed and masked (8 % of a step on an H100).
