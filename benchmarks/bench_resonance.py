@@ -83,7 +83,15 @@ def markdown(r) -> str:
             f"{'met' if t['cold_met'] else '**not met**'} / "
             f"{'met' if t['warm_met'] else '**not met**'} |")
     lines += ["", "Before this work (session 9, preload set, same machine): 50-52 s cold "
-              "(compile 34.7 s in 80 programs), 19.4 s warm (13 s of it tracing)."]
+              "(compile 34.7 s in 80 programs), 19.4 s warm (13 s of it tracing). "
+              "2026-11-26 16:12, before the orbit model stopped computing Floquet "
+              "multipliers it does not use and the compliance's gradient went to forward "
+              "mode: preload 39.1 s cold / 9.1 s warm, default 39.6 s / 9.9 s. What remains "
+              "is XLA's time on the size of the programs (about 0.17 ms per instruction of "
+              "optimised HLO on this machine: the fit's solve 6.8 s, the branch check "
+              "7.4 s); compiling the branch check on the second core beside the fit's "
+              "solve was tried and lost (XLA already compiles on both cores: each took "
+              "1.5-1.8x as long, 36 s in all)."]
     return "\n".join(lines) + "\n"
 
 

