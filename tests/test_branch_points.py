@@ -11,6 +11,8 @@ from bsfs_jax.design import (
     OrbitSettings,
     fold_frequency_value,
     frc_peak_frequency_value,
+    frc_peak_value,
+    frc_point_values,
     locate_frc_peak,
     point_hint,
     with_values,
@@ -61,6 +63,15 @@ def test_fold_frequencies_have_exact_gradients(base):
     np.testing.assert_allclose(fwd, rev, rtol=1e-8)
     assert [float(value(theta, h)) for h in hints] == pytest.approx([b.p for b in folds],
                                                                      rel=1e-12)
+    # The forecast's one program for the peak amplitude and the folds (vmapped over the
+    # stacked hints, forward mode) gives the same derivatives.
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), hint, *hints)
+    both = np.asarray(jax.vmap(lambda h: jax.jacfwd(lambda th: frc_point_values(
+        with_values(p, NAMES, th), 100.0, h, ImplicitForward()))(theta))(stacked))
+    np.testing.assert_allclose(both[1:, 1], rev, rtol=1e-8)
+    amp = jax.grad(lambda th: frc_peak_value(with_values(p, NAMES, th), 100.0, hint))(theta)
+    np.testing.assert_allclose(both[0, 0], amp, rtol=1e-8)
+    assert np.all(np.abs(amp) > 0)
 
     def fold_ps(th):
         br = _located(p, th, 100.0, FOLDED)[1]

@@ -263,3 +263,18 @@ def test_forecast_modal_is_the_forecasts_modal_part(folders):
         assert q.value == pytest.approx(whole[q.name]["value"], rel=1e-9), q.name
         assert q.ci95 == pytest.approx(whole[q.name]["ci95"], rel=1e-9), q.name
         assert q.method == whole[q.name]["method"]
+
+
+def test_frc_continued_by_shooting_where_the_working_force_opens_a_joint():
+    """Above 90 % of the smallest linearised lift-off force "auto" goes straight to
+    shooting (harmonic balance converges slowly past contact loss); below, and for a
+    method the caller chose, the settings stay."""
+    from bsfs_jax.design import OrbitSettings
+    from identification._forecast_run import frc_settings
+
+    auto = OrbitSettings()
+    assert frc_settings(auto, 100.0, [61.5, 97.2]).frc_method == "shooting"
+    assert frc_settings(auto, 56.0, [61.5, 97.2]).frc_method == "shooting"
+    assert frc_settings(auto, 50.0, [61.5, 97.2]).frc_method == "auto"
+    hb = OrbitSettings(frc_method="hb")
+    assert frc_settings(hb, 100.0, [61.5, 97.2]).frc_method == "hb"

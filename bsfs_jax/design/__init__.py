@@ -37,6 +37,7 @@ from ._orbit import PeakHint as PeakHint
 from ._orbit import fold_frequency_value as fold_frequency_value
 from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
 from ._orbit import frc_peak_value as frc_peak_value
+from ._orbit import frc_point_values as frc_point_values
 from ._orbit import locate_frc_peak as locate_frc_peak
 from ._orbit import peak_orbit_samples as peak_orbit_samples
 from ._orbit import periodic_orbit as periodic_orbit

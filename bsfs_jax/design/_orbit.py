@@ -182,14 +182,27 @@ def _on_hyperplane(params, force_n, hint: PeakHint, adjoint):
     return adjoint.attach(augmented, family, v_star, hint.jacobian), family
 
 
-def frc_peak_value(params, force_n, hint: PeakHint):
-    """The FRC peak nut amplitude [m] at the located peak, differentiable (reverse mode)
-    in `params` and `force_n` by the implicit function theorem (module docstring)."""
-    adjoint = ImplicitReverse()
+def frc_peak_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
+    """The FRC peak nut amplitude [m] at the located peak, differentiable in `params` and
+    `force_n` by the implicit function theorem (module docstring). `adjoint`:
+    `ImplicitReverse` (jax.grad) or `ImplicitForward` (jax.jacfwd)."""
     v, family = _on_hyperplane(params, force_n, hint, adjoint)
     amps = family_amplitudes(family, vector_field, hint.method, hint.scale, hint.p_scale, 1,
                              v, adjoint.ode_adjoint())
     return amps[2]
+
+
+def frc_point_values(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
+    """(nut amplitude [m], frequency [Hz]) of a located branch point on the hyperplane
+    normal to the branch there, differentiable in `params` and `force_n`: at the peak
+    the amplitude's derivative is the peak amplitude's (`frc_peak_value`), at a fold the
+    frequency's is the fold frequency's (`fold_frequency_value`). One program serves the
+    peak and the folds (vmapped over stacked hints); the other entry of each pair is not
+    a derivative of anything."""
+    v, family = _on_hyperplane(params, force_n, hint, adjoint)
+    amps = family_amplitudes(family, vector_field, hint.method, hint.scale, hint.p_scale, 1,
+                             v, adjoint.ode_adjoint())
+    return jnp.stack([amps[2], v[-1] * hint.p_scale])
 
 
 def point_hint(point, branch) -> PeakHint:
