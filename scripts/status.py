@@ -656,6 +656,46 @@ def _gpu(src: Sources, v: Values, targets: dict):
     put("target_240", lambda: verdict(kernel(240)["run_s"] <= _t(targets, "gpu_b1_240_s")))
 
 
+def _cold(src: Sources, v: Values):
+    """C1 (benchmarks/results/cold.json) and I2 (resonance.json): time to first answer."""
+    f = "benchmarks/results/cold.json"
+    put = lambda name, fn, file=f: v.put(name, fn, file)  # noqa: E731
+
+    def cmd(name):
+        for c in src.json(f).raw()["commands"]:
+            if c["name"] == name:
+                return c
+        raise _Absent(f"{f} has no '{name}' command")
+
+    put("cold.date", lambda: date10(src.json(f).raw()["date"]))
+    for key, name in (("simulate", "simulate"), ("modes", "modes"), ("cont", "continue"),
+                      ("sweep", "sweep"), ("map", "map"), ("sens", "sensitivity"),
+                      ("repro", "reproduce --quick"), ("predict", "predict")):
+        put(f"cold.{key}", lambda n=name: sig(cmd(n)["cold"]["wall_s"], 3))
+        put(f"cold.{key}_warm", lambda n=name: sig(cmd(n)["warm"]["wall_s"], 3))
+        put(f"cold.{key}_programs", lambda n=name: integer(cmd(n)["cold"]["compiles"]))
+        put(f"cold.{key}_met", lambda n=name: verdict(bool(cmd(n)["met"]["cold"]))
+            if cmd(n)["met"]["cold"] is not None else "no target")
+    put("cold.predict_date", lambda: date10(cmd("predict")["date"]))
+    put("cold.predict_before", lambda: sig(cmd("predict")["before"]["cold_wall_s"], 3))
+    put("cold.predict_before_warm", lambda: sig(cmd("predict")["before"]["warm_wall_s"], 3))
+    r = "benchmarks/results/resonance.json"
+
+    def rset(name):
+        for st in src.json(r).raw()["sets"]:
+            if st["fit_set"] == name:
+                return st
+        raise _Absent(f"{r} has no '{name}' set")
+
+    put("res.date", lambda: date10(src.json(r).raw()["date"]), r)
+    for name in ("preload", "default"):
+        put(f"res.{name}_cold", lambda n=name: sig(rset(n)["cold"]["wall_s"], 3), r)
+        put(f"res.{name}_warm", lambda n=name: sig(rset(n)["warm"]["wall_s"], 2), r)
+        put(f"res.{name}_compile", lambda n=name: sig(rset(n)["cold"]["compile_s"], 3), r)
+        put(f"res.{name}_met", lambda n=name: " / ".join(
+            verdict(rset(n)["targets"][k]) for k in ("cold_met", "warm_met")), r)
+
+
 def collect(src: Sources, templates: dict) -> Values:
     v = Values()
     targets = templates.get("targets", {})
@@ -664,6 +704,7 @@ def collect(src: Sources, templates: dict) -> Values:
     _simulate(src, v, targets)
     _b1(src, v)
     _gpu(src, v, targets)
+    _cold(src, v)
     _orbits(src, v, targets)
     _identify(src, v)
     _reproduction(src, v)
