@@ -132,7 +132,8 @@ def markdown(r) -> str:
                          "changes: the forecast's FRC continued by shooting where the "
                          "working force opens a joint, its gradients in forward mode and "
                          "in one program for the peak amplitude and the folds, the "
-                         "equilibrium compiled once") + "."]
+                         "equilibrium compiled once, the probes' continuations in "
+                         "threads and the nominal curve beside the lift-off search") + "."]
     lines += ["", "Exit codes other than 0 (4: identify did not converge) are listed in "
               "`benchmarks/results/cold.json`."]
     return "\n".join(lines) + "\n"
