@@ -409,6 +409,8 @@ def demo(tmp):
          str(out / "identify"), "--out", str(out / "preload-loss")],
         ["simulate", "--frequency", "500", "--force", "5000", "--verify", "--out",
          str(out / "simulate")],
+        ["predict", "--from", str(out / "preload-loss"), "--force", "100", "--out",
+         str(out / "predict")],
     ]
     seconds, codes, compile_s = [], [], []
     for args in commands:
@@ -605,7 +607,9 @@ def markdown(r) -> str:
         f"bearing preload {fmt_pm(ch['preloads']['bearing_preload'])} "
         f"({fmt_truth(ch['preloads']['bearing_preload'])}) |",
         f"| `make demo`'s commands (identify, plan-test, preload-loss with --compare, "
-        f"simulate --verify; one fresh cache) | {dm['total_s']:.1f} | "
+        f"simulate --verify{', predict' if len(dm['commands']) > 4 else ''}; one fresh "
+        f"cache{'; measured ' + dm['date'] if dm.get('date') else ''}) | "
+        f"{dm['total_s']:.1f} | "
         + ", ".join(f"{c.split()[1]} {t:.1f} s" for c, t in zip(dm["commands"], dm["seconds"]))
         + " |",
         "",
