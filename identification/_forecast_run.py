@@ -185,7 +185,7 @@ def _probe_branches(ident, steps, jobs, force, sub, settings):
     no peak there: every FRC quantity vanishes), continued in threads: the corrector's
     program is compiled by then (the estimate's branch used it), and XLA runs it without
     Python's lock, so the probes share the cores (on the 2-core machine 26 s of probes
-    took 16 s)."""
+    took about 12 s)."""
     import os
 
     def one(job):

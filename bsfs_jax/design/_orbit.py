@@ -186,10 +186,7 @@ def frc_peak_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
     """The FRC peak nut amplitude [m] at the located peak, differentiable in `params` and
     `force_n` by the implicit function theorem (module docstring). `adjoint`:
     `ImplicitReverse` (jax.grad) or `ImplicitForward` (jax.jacfwd)."""
-    v, family = _on_hyperplane(params, force_n, hint, adjoint)
-    amps = family_amplitudes(family, vector_field, hint.method, hint.scale, hint.p_scale, 1,
-                             v, adjoint.ode_adjoint())
-    return amps[2]
+    return frc_point_values(params, force_n, hint, adjoint)[0]
 
 
 def frc_point_values(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):

@@ -144,12 +144,15 @@ def _solve_core(method, vector_field, z0, args, period, scale, n_periods, tol, m
     sol = newton(lambda z, th: fwd_residual(z, th), z0, (args, period), tol=tol,
                  max_steps=max_steps)
     z_star = jax.lax.stop_gradient(sol.value)
+    d = scale.shape[0]
     if stability:
         m_scaled = method.monodromy(vector_field, z_star, jax.lax.stop_gradient(args),
                                     jax.lax.stop_gradient(period), n_periods, scale,
                                     sol.jacobian)
-    else:  # not asked for: nan (the orbit is then never called stable)
-        m_scaled = jnp.full((scale.shape[0],) * 2, jnp.nan)
+        multipliers = _sorted_eigvals(m_scaled)
+    else:  # not asked for: nan, and no eigenvalue solve (the orbit is never called stable)
+        m_scaled = jnp.full((d, d), jnp.nan)
+        multipliers = jnp.full((d,), jnp.nan, dtype=jnp.result_type(complex))
     z = adjoint.attach(_Residual(method, vector_field, n_periods, scale,
                                  adjoint.ode_adjoint()),
                        (args, period), z_star, sol.jacobian)
@@ -159,7 +162,7 @@ def _solve_core(method, vector_field, z0, args, period, scale, n_periods, tol, m
                                 sol.residual)
     result = method.flag_truncation(sol.result, err)
     monodromy = m_scaled * scale[:, None] / scale[None, :]
-    return PeriodicOrbit(state, period, _sorted_eigvals(m_scaled), monodromy, sol.residual,
+    return PeriodicOrbit(state, period, multipliers, monodromy, sol.residual,
                          err, result, z, scale, sol.steps, method, n_periods)
 
 
