@@ -465,3 +465,27 @@ def test_identification_refuses_32_bit_floats():
     lines = [ln for ln in out.stdout.splitlines() if ln.startswith("refused:")]
     assert len(lines) == 2, out.stdout
     assert all("needs 64-bit floats" in ln and "jax_enable_x64" in ln for ln in lines)
+
+
+def test_static_compliance_gradient_matches_central_differences():
+    """The compliance's gradient (forward mode, `compliance_and_gradient`) against central
+    differences of the compliance itself: the preloads move it, the dampers do not."""
+    import glob
+
+    from identification import _model
+    from identification._load import load_records
+    from identification._problem import Problem
+    from identification._report import measurement_data
+
+    data = [measurement_data(r) for r in load_records(
+        sorted(glob.glob(str(idn.DATA_DIR / "resonance" / "*.csv"))))]
+    pb = Problem(data, bsfs_jax.preset(), list(idn.PRELOAD_FIT))
+    th = jnp.asarray([0.1, -0.2, 0.3, 0.0, -0.1])
+    c, g = (np.asarray(a) for a in _model.compliance_and_gradient(th, pb.fit_data,
+                                                                 pb.structure))
+    f = lambda t: float(_model.static_compliance(t, pb.fit_data, pb.structure, 0))  # noqa: E731
+    h = 1e-6
+    fd = np.array([(f(th.at[i].add(h)) - f(th.at[i].add(-h))) / (2 * h) for i in range(5)])
+    assert c[0] == pytest.approx(f(th), rel=1e-12)
+    assert np.all(np.abs(fd[:2]) > 0) and np.all(fd[2:] == 0)
+    np.testing.assert_allclose(g[0], fd, rtol=1e-6, atol=1e-6 * np.max(np.abs(fd)))
