@@ -51,9 +51,19 @@ def family_amplitudes(family, vector_field, method, scale, p_scale, n_periods, u
                             ode_adjoint or dfx.ForwardMode())
 
 
+def prepared(family):
+    """`family.prepare()` where the family has one (an optional part of the protocol: the
+    family with its parameter-independent work done once, e.g. a model built from fixed
+    parameters), else the family itself. Called once per corrector call, outside its
+    Newton loops."""
+    prepare = getattr(family, "prepare", None)
+    return prepare() if callable(prepare) else family
+
+
 def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, max_iter,
                   amplitude_index, u_pred, tangent, chord_lu):
     TRACE_COUNTS["corrector"] += 1
+    family = prepared(family)
     n = u_pred.shape[0] - 1
 
     def augmented(u, data):
@@ -62,12 +72,12 @@ def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, 
         return jnp.concatenate([r, jnp.dot(t, u - u_p)[None]])
 
     sol = newton(augmented, u_pred, (u_pred, tangent), tol=tol, max_steps=max_iter,
-                 chord_lu=chord_lu)
+                 chord_lu=chord_lu, keep_lu=True)
     u = sol.value
     jac_r = sol.jacobian[:n]
     # sol.jacobian = [R_u; tangent]: its LU gives the new tangent and starts the next
     # corrector's chord iterations.
-    lu, piv = jax.scipy.linalg.lu_factor(sol.jacobian)
+    lu, piv = sol.lu
     t_new = jax.scipy.linalg.lu_solve((lu, piv), jnp.zeros(n + 1).at[n].set(1.0))
     t_new = t_new / jnp.linalg.norm(t_new)
     args, period = family(u[n] * p_scale)

@@ -99,21 +99,23 @@ def fourier_half_range(ys, newton_steps: int = 4):
     weight = jnp.where((k == 0) | (2 * k == n), 1.0, 2.0)
     wc = weight * c
 
-    def series(theta, order):
-        e = jnp.exp(1j * k * theta[None, :])
-        return jnp.real(jnp.sum(wc * (1j * k) ** order * e, axis=0))
+    def series(theta, order):  # theta (2, d): the maxima's and the minima's phases
+        e = jnp.exp(1j * k[None] * theta[:, None, :])
+        return jnp.real(jnp.sum(wc[None] * (1j * k[None]) ** order * e, axis=1))
 
-    def extreme(sign):
-        j = jnp.argmax(sign * ys, axis=0)
-        theta = 2.0 * jnp.pi * j / n
-        for _ in range(newton_steps):
-            d1, d2 = series(theta, 1), series(theta, 2)
-            ok = sign * d2 < 0.0
-            step = jnp.where(ok, d1 / jnp.where(ok, d2, 1.0), 0.0)
-            theta = theta - jnp.clip(step, -jnp.pi / n, jnp.pi / n)
-        return series(theta, 0)
+    sign = jnp.array([1.0, -1.0])[:, None]
+    theta = 2.0 * jnp.pi * jnp.argmax(sign[:, None, :] * ys[None], axis=1) / n
 
-    return 0.5 * (extreme(1.0) - extreme(-1.0))
+    def polish(_, theta):  # one Newton step on x'(theta) = 0 for both extremes
+        d1, d2 = series(theta, 1), series(theta, 2)
+        ok = sign * d2 < 0.0
+        step = jnp.where(ok, d1 / jnp.where(ok, d2, 1.0), 0.0)
+        return theta - jnp.clip(step, -jnp.pi / n, jnp.pi / n)
+
+    # A loop, not Python-unrolled: the program holds the series once.
+    theta = jax.lax.fori_loop(0, newton_steps, polish, theta)
+    extremes = series(theta, 0)
+    return 0.5 * (extremes[0] - extremes[1])
 
 
 def orbit_amplitudes(method, vector_field, z, args, period, n_periods, scale, ode_adjoint):
