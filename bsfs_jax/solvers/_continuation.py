@@ -32,7 +32,7 @@ from ._branch import Branch, HostPoint, as_host, test_values
 from ._events import EVENT_KINDS, locate_event, locate_peak, points_to_branch
 from ._harmonic import HarmonicBalance
 from ._integrate import SolverError
-from ._kernel import TRACE_COUNTS, Kernel
+from ._kernel import TRACE_COUNTS, Kernel, prepare_outside
 from ._orbit import BRANCH_POINT, _init_jit, periodic_orbit
 from ._shooting import Shooting, default_scale, float_leaves_to_arrays
 
@@ -86,9 +86,9 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
         raise ValueError(f"ds must be positive, got {ds}")
     ds_min = ds / 1000 if ds_min is None else float(ds_min)
     ds_max = 10 * ds if ds_max is None else float(ds_max)
-    family = float_leaves_to_arrays(family)
+    family = prepare_outside(float_leaves_to_arrays(family))
     y_guess = jnp.asarray(y_guess, dtype=float)
-    if not bool(jnp.all(jnp.isfinite(y_guess))):
+    if not np.all(np.isfinite(np.asarray(y_guess))):
         raise ValueError(f"y_guess must be finite, got {y_guess}")
     if scale is None:
         scale = getattr(family, "scale", None)

@@ -94,6 +94,18 @@ def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, 
                           state)
 
 
+@eqx.filter_jit
+def _prepare_jit(family):
+    return family.prepare()
+
+
+def prepare_outside(family):
+    """The family prepared by its own small program (where it has `prepare`), so that the
+    parameter-independent work is neither compiled into every corrector program nor run
+    op by op."""
+    return _prepare_jit(family) if callable(getattr(family, "prepare", None)) else family
+
+
 @functools.lru_cache(maxsize=64)
 def _compiled(static_family, vector_field, method, n_periods, tol, max_iter, amplitude_index,
               use_chord):
@@ -142,8 +154,7 @@ class Kernel:
             lu, piv = chord.lu
         else:  # no chord matrix: NaN makes the chord stage stop at once (same trace)
             if self._no_chord is None or self._no_chord[0].shape[0] != n:
-                self._no_chord = (jnp.full((n, n), jnp.nan, dtype=float),
-                                  jnp.arange(n, dtype=jnp.int32))
+                self._no_chord = (np.full((n, n), np.nan), np.arange(n, dtype=np.int32))
             lu, piv = self._no_chord
         if self._fn is None:
             dyn, static = eqx.partition(self.family, eqx.is_array)
@@ -161,12 +172,18 @@ class Kernel:
     def convert(self, point: HostPoint) -> HostPoint:
         """A point of the previous (smaller) harmonic count in this kernel's unknowns."""
         d = int(np.asarray(self.scale).shape[0])
-        n_old = point.u.shape[0] - 1
-        h_old = (n_old // d - 1) // 2
-        old = self.method.with_harmonics(h_old)
-        u = np.concatenate([np.asarray(self.method.from_coefficients(old, point.u[:-1], d)),
-                            point.u[-1:]])
-        t = np.concatenate([np.asarray(self.method.from_coefficients(old, point.tangent[:-1],
-                                                                     d)), point.tangent[-1:]])
+        h_new = int(self.method.harmonics)
+
+        def pad(v):  # (c0, a_1..a_H, b_1..b_H) in the new harmonic count (host side)
+            z, p = np.asarray(v[:-1]), v[-1:]
+            h_old = (z.size // d - 1) // 2
+            a = np.zeros((h_new, d))
+            b = np.zeros((h_new, d))
+            keep = min(h_old, h_new)
+            a[:keep] = z[d:d + h_old * d].reshape(h_old, d)[:keep]
+            b[:keep] = z[d + h_old * d:].reshape(h_old, d)[:keep]
+            return np.concatenate([z[:d], a.ravel(), b.ravel(), p])
+
+        u, t = pad(point.u), pad(point.tangent)
         return dataclasses.replace(point, u=u, tangent=t / np.linalg.norm(t), jacobian=None,
                                    lu=None)

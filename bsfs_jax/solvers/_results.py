@@ -46,7 +46,7 @@ def result_ok(result) -> np.ndarray:
 
 def result_codes(result) -> np.ndarray:
     """The integer codes of a (batched) result, for files (0 = successful)."""
-    return np.asarray(jnp.asarray(result._value))
+    return np.asarray(result._value)
 
 
 def result_code(result):
