@@ -33,7 +33,10 @@ class OrbitTrials:
         s = self.s
         for k in range(0, len(items), s.batch):
             part = items[k:k + s.batch]
-            pad = part + [part[-1]] * (s.batch - len(part)) if len(items) > s.batch else part
+            # Always a full batch (the last item repeated): one shape, so one compiled
+            # program for every call (a first sweep compiled it for 16, 8 and 1 items:
+            # three programs of 5 s each, against a few lanes of repeated work).
+            pad = part + [part[-1]] * (s.batch - len(part))
             vals, ys, scs, ns = (np.array([it[j] for it in pad]) for j in range(4))
             chk = check_orbits(self.p.vector_field, self.p.setup, self.p.data, vals, ys,
                                scs, ns, tol=s.orbit_tol, max_steps=s.orbit_max_steps,

@@ -118,6 +118,19 @@ def operating_orbit(params, frequency_hz, force_n, settings: OrbitSettings):
     return orbit, args
 
 
+@eqx.filter_jit
+def _first_frequency(params):
+    """The first natural frequency [Hz] (one small program, not op by op)."""
+    return modes(build_system(params)).frequencies_hz[0]
+
+
+@eqx.filter_jit
+def _linear_start(family, p):
+    """The linear steady state at t = 0 of the family's member at p (one program)."""
+    args, _ = family(p)
+    return linear_guess(args[0], args[1])
+
+
 class PeakHint(eqx.Module):
     """A located FRC peak: what the differentiable evaluation needs (host-side result)."""
 
@@ -135,12 +148,11 @@ def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
     """(PeakHint, Branch): the FRC peak over `settings.frc_band` x f1 (or start/stop).
 
     Raises `SolverError` when the amplitude has no maximum inside the interval."""
-    f1 = float(modes(build_system(params)).frequencies_hz[0])
+    f1 = float(_first_frequency(params))
     lo = settings.frc_band[0] * f1 if start_hz is None else float(start_hz)
     hi = settings.frc_band[1] * f1 if stop_hz is None else float(stop_hz)
     family = bsfs_family(params, force_n)
-    args, period = family(lo)
-    guess = linear_guess(args[0], args[1])
+    guess = _linear_start(family, lo)
 
     def run(method):
         return continue_orbits(family, guess, lo, hi, method=method, ds=settings.frc_ds,
