@@ -83,7 +83,8 @@ def _report_fn():
     @eqx.filter_jit
     def report(params, static_force):
         system = build_system(params)
-        return system, modes(system, static_force)
+        md = modes(system, static_force)
+        return system, md, md.static_stiffness
 
     return report
 
@@ -122,7 +123,7 @@ def run_simulate(args) -> int:
     ui.warn_implausible_excitation(forces=[args.force], frequencies=[args.frequency])
     folder = ui.out_dir(args.out)
     started = time.perf_counter()
-    system, md = _report_fn()(params, 0.0)
+    system, md, k_static = _report_fn()(params, 0.0)
     print(f"natural frequencies: {', '.join(f'{f:.1f}' for f in np.asarray(md.frequencies_hz))} Hz")
     print(f"simulating {args.transient} + {args.periods} periods at {args.frequency:g} Hz, "
           f"{args.force:g} N ...", flush=True)
@@ -154,7 +155,7 @@ def run_simulate(args) -> int:
                                        np.abs(jf).max(axis=0).tolist())),
         "natural_frequencies_hz": np.asarray(md.frequencies_hz),
         "modal_damping_ratios": np.asarray(md.damping_ratios),
-        "static_stiffness_n_per_um": float(md.static_stiffness) * 1e-6,
+        "static_stiffness_n_per_um": float(k_static) * 1e-6,
         **_thermal_dict(system),
         "poincare_spread": float(spread),
         "dominant_spectral_lines_hz": [{"frequency_hz": float(freq[i]),
@@ -254,7 +255,7 @@ def run_params(args) -> int:
 
 def run_modes(args) -> int:
     params = _apply_common(ui.load_params_from_args(args), args)
-    system, md = _report_fn()(params, args.static_force)
+    system, md, k_static = _report_fn()(params, args.static_force)
     f = np.asarray(md.frequencies_hz)
     z = np.asarray(md.damping_ratios)
     shapes = np.asarray(md.shapes)
@@ -266,7 +267,7 @@ def run_modes(args) -> int:
 
         print(json.dumps(jsonable({"natural_frequencies_hz": f, "damping_ratios": z,
                                    "mode_shapes_bsn": shapes.T,
-                                   "static_stiffness_n_per_um": float(md.static_stiffness) / 1e6,
+                                   "static_stiffness_n_per_um": float(k_static) / 1e6,
                                    **_thermal_dict(system)}), indent=2))
         return 0
     print("mode  frequency [Hz]  damping ratio   shape (bearing, screw, nut; max = 1)")
@@ -274,7 +275,7 @@ def run_modes(args) -> int:
         print(f"{i + 1:4d}  {f[i]:14.1f}  {z[i]:13.4f}   "
               + "  ".join(f"{s:+.3f}" for s in shapes[:, i]))
     th = _thermal_dict(system)
-    print(f"static axial stiffness at the nut: {float(md.static_stiffness) / 1e6:.1f} N/um")
+    print(f"static axial stiffness at the nut: {float(k_static) / 1e6:.1f} N/um")
     print(f"thermal: {'on' if params.thermal.enabled else 'off'} at "
           f"{float(params.thermal.speed_rpm):g} r/min; T_bearing/screw/nut = "
           + "/".join(f"{v:.1f}" for v in th["temperatures_c"].values())

@@ -5,6 +5,7 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._numerics import half_range
 from ..model import Sinusoid, System, accelerations, build_system, joint_forces, vector_field
@@ -156,8 +157,9 @@ def simulate(model, *, frequency_hz=None, force_n=None, forcing=None, y0=None,
 
 def _describe(forcing) -> str:
     try:
-        f = float(jnp.max(forcing.frequency))
-        a = float(jnp.max(getattr(forcing, "amplitude", jnp.nan)))
+        f = float(np.max(np.asarray(forcing.frequency)))
+        a = float(np.max(np.asarray(getattr(forcing, "amplitude", np.nan))))
         return f"{f:g} Hz" + ("" if a != a else f", {a:g} N")
-    except (TypeError, jax.errors.ConcretizationTypeError):
+    except (TypeError, jax.errors.ConcretizationTypeError,
+            jax.errors.TracerArrayConversionError):
         return type(forcing).__name__
