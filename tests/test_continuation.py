@@ -111,6 +111,31 @@ def test_harmonic_balance_folds_match_shooting_folds(duffing_frc, duffing_frc_hb
     assert hb.peak.located and sh.peak.located
 
 
+def test_harmonic_count_falls_again_past_the_peak(duffing_frc):
+    """From 2 harmonics at tolerance 1e-6 the count rises towards the peak and, past it,
+    where half as many meet the estimate again, falls (the rest of the branch is cheaper);
+    every point still meets the tolerance, the events are located with the largest count
+    and agree with shooting."""
+    hb = continue_orbits(frequency_family(**HARDENING), jnp.array([0.1, 0.0]), 0.8, 1.3,
+                         ds=0.05, vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                         p_scale=1.0, amplitude_index=0,
+                         method=HarmonicBalance(harmonics=2, error_tol=1e-6))
+    assert hb.info["harmonic_upgrades"] >= 1 and hb.info["harmonic_downgrades"] >= 1
+    assert hb.info["stop_reason"] == "left the parameter interval"
+    assert np.all(hb.error_estimates <= 1e-6)
+    assert hb.method.harmonics == 8  # the branch reports the largest count used
+    folds_hb = sorted(b.p for b in hb.bifurcations if b.kind == "fold")
+    folds_sh = sorted(b.p for b in duffing_frc.bifurcations if b.kind == "fold")
+    np.testing.assert_allclose(folds_hb, folds_sh, rtol=1e-6)
+    assert hb.peak.amplitude == pytest.approx(duffing_frc.peak.amplitude, rel=1e-6)
+    # Past the peak, on fewer harmonics, each orbit is shooting's orbit at its frequency.
+    family = frequency_family(**HARDENING)
+    for i in np.flatnonzero(hb.p > 1.2):
+        args, period = family(hb.p[i])
+        orbit = periodic_orbit(duffing, hb.states[i], args, period, scale=jnp.ones(2))
+        np.testing.assert_allclose(hb.states[i], orbit.state, rtol=0, atol=1e-5)
+
+
 def test_duffing_folds_match_harmonic_balance(duffing_frc):
     branch = duffing_frc
     w_hb, a_hb = harmonic_balance_curve(**HARDENING)

@@ -20,6 +20,11 @@ complex pair on the circle) and amplitude peaks (dA/ds from + to -).
 With harmonic balance the time-domain error estimate is checked at every point; where it
 exceeds the method's `error_tol`, the harmonic count is doubled and the step redone, so
 every point of the branch carries an error below tolerance (or the run says why not).
+Where a point's estimate falls below a hundredth of the tolerance (past a resonance peak),
+the same point is solved again with half the harmonics (never fewer than the first
+point's) and the branch goes on with them if that estimate is below half the tolerance:
+on the 100 N BSFS resonance the stretch after the peak no longer runs on 64 harmonics.
+Events are located, and the branch reported, with the largest count used.
 """
 
 import dataclasses
@@ -112,7 +117,10 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     callback = progress if callable(progress) else None
 
     points, arclength = [first], [0.0]
-    steps_taken = rejected = upgrades = 0
+    steps_taken = rejected = upgrades = downgrades = 0
+    h_min = getattr(kernel.method, "harmonics", None)
+    kernel_max = kernel  # the largest harmonic count used: events and the branch's method
+    down = _Downgrade()
     stop_reason = "max_points"
     events = []
     tests_prev = test_values(first)
@@ -129,7 +137,10 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                     upgrades += 1
                     kernel = kernel.with_method(
                         kernel.method.with_harmonics(2 * kernel.method.harmonics))
-                    points = [kernel.convert(p) for p in points]
+                    if kernel.method.harmonics > kernel_max.method.harmonics:
+                        kernel_max = kernel
+                    points[-1] = kernel.convert(points[-1])
+                    down.reset()
                     continue
                 # No more harmonics allowed: stop rather than continue with points whose
                 # error exceeds the tolerance (the caller may switch to shooting).
@@ -176,6 +187,23 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                 ds = min(ds * 1.5, ds_max)
             elif cur.steps >= max_newton + 2:
                 ds = max(ds * 0.7, ds_min)
+            # Past the strongly nonlinear stretch (a resonance peak) fewer harmonics
+            # may meet the estimate again: try half as many at this point now and then.
+            if h_min is not None and kernel.method.harmonics > h_min and down.due(
+                    cur.error, kernel.accurate_tol):
+                smaller = kernel.with_method(
+                    kernel.method.with_harmonics(kernel.method.harmonics // 2))
+                here = smaller.convert(cur)
+                trial = smaller.correct(here.u, here.tangent, ds_used=cur.ds_used)
+                if trial.converged and trial.error <= 0.5 * smaller.accurate_tol and abs(
+                        trial.u[-1] - cur.u[-1]) <= 1e-6 * max(1.0, abs(cur.u[-1])):
+                    kernel, points[-1] = smaller, trial.oriented(
+                        1.0 if float(np.dot(trial.tangent, here.tangent)) >= 0 else -1.0)
+                    tests_prev = test_values(points[-1])
+                    downgrades += 1
+                    down.reset()
+                else:
+                    down.back_off()
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(p=f"{p_now:.6g}", ds=f"{ds:.2g}")
@@ -188,6 +216,10 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
         if bar is not None:
             bar.close()
 
+    if kernel_max is not kernel:  # events are located with the most harmonics used
+        kernel = kernel_max
+    if h_min is not None:  # every point in the unknowns of that harmonic count
+        points = [p if p.u.size == _size(kernel) else kernel.convert(p) for p in points]
     bifurcations, peaks = [], []
     for index, k, kind in events:
         if kind == "peak":
@@ -205,8 +237,33 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
             "corrector_traces": TRACE_COUNTS["corrector"] - traces_before,
             "p_scale": p_scale, "scale": np.asarray(kernel.scale).tolist(),
             "method": kernel.method.name, "harmonic_upgrades": upgrades,
+            "harmonic_downgrades": downgrades,
             **kernel.method.discretisation()}
     return points_to_branch(points, arclength, bifurcations, peaks, kernel, n_periods, info)
+
+
+class _Downgrade:
+    """When to try half the harmonics: the point's error estimate at most a hundredth of
+    the tolerance, and not within `wait` points of the last change or failed try (the wait
+    doubles after each failed try)."""
+
+    def __init__(self):
+        self.wait, self.since = 4, 0
+
+    def due(self, error, tol) -> bool:
+        self.since += 1
+        return tol is not None and self.since >= self.wait and error <= 1e-2 * tol
+
+    def reset(self):
+        self.wait, self.since = 4, 0
+
+    def back_off(self):
+        self.wait, self.since = min(2 * self.wait, 64), 0
+
+
+def _size(kernel) -> int:
+    d = int(np.asarray(kernel.scale).shape[0])
+    return d * (2 * int(kernel.method.harmonics) + 1) + 1
 
 
 def _first_point(kernel, y_guess, p_start, normalise):
