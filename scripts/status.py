@@ -676,9 +676,14 @@ def _cold(src: Sources, v: Values):
         put(f"cold.{key}_programs", lambda n=name: integer(cmd(n)["cold"]["compiles"]))
         put(f"cold.{key}_met", lambda n=name: verdict(bool(cmd(n)["met"]["cold"]))
             if cmd(n)["met"]["cold"] is not None else "no target")
-    put("cold.predict_date", lambda: date10(cmd("predict")["date"]))
-    put("cold.predict_before", lambda: sig(cmd("predict")["before"]["cold_wall_s"], 3))
-    put("cold.predict_before_warm", lambda: sig(cmd("predict")["before"]["warm_wall_s"], 3))
+        # The previous measurement, where cold.json keeps one ("before": an earlier run).
+        put(f"cold.{key}_before", lambda n=name: sig(cmd(n)["before"]["cold_wall_s"], 3))
+        put(f"cold.{key}_before_warm",
+            lambda n=name: sig(cmd(n)["before"]["warm_wall_s"], 3))
+        put(f"cold.{key}_before_programs",
+            lambda n=name: integer(cmd(n)["before"]["compiles"]))
+    put("cold.before_date", lambda: date10(cmd("continue")["before"]["date"]))
+    put("cold.predict_before_date", lambda: date10(cmd("predict")["before"]["date"]))
     r = "benchmarks/results/resonance.json"
 
     def rset(name):
