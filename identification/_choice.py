@@ -77,10 +77,16 @@ def screen_sines(system, sines, max_harmonic_hz=np.inf, errors: bool = True):
     """
     if not sines:
         return [], [], []
-    out = _sine_kernel(system, jnp.asarray([d.frequency_hz for d in sines], float),
+    # The records padded to a power of two (at least 4) by repeating the last: one
+    # compiled kernel for every plan and record count (`plan-test` compiled it for six
+    # counts), each row independent of the others.
+    n = len(sines)
+    rows = list(range(n)) + [n - 1] * (max(4, 1 << (n - 1).bit_length()) - n)
+    out = _sine_kernel(system, jnp.asarray([sines[i].frequency_hz for i in rows], float),
                        jnp.asarray(sines[0].harmonics, float),
-                       jnp.asarray(np.stack([d.force for d in sines])), errors)
-    u_b, u_n, g = (np.asarray(a) for a in out[:3])
+                       jnp.asarray(np.stack([sines[i].force for i in rows])), errors)
+    out = [None if a is None else np.asarray(a)[:n] for a in out]
+    u_b, u_n, g = out[:3]
     d_nut, d_bearing = _preload_deformations(system)
     ratios = [float(max(a / d_nut, b / d_bearing)) for a, b in zip(u_n, u_b)]
     z = [None] * len(sines)
