@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import bsfs_jax
+from bsfs_jax.design import OPENS_FRACTION  # the threshold of design.opens_joint
 
 from ._forecast import (
     ForecastError,
@@ -297,11 +298,6 @@ def forecast_liftoff(ident: Identified, *, start_hz=None, stop_hz=None,
     lift, per_joint = nonlinear_liftoff(ident, *linear_liftoff(ident, start, stop), start,
                                          stop)
     return dict(quantities=[lift], per_joint_liftoff=per_joint)
-
-
-# A working force above this fraction of the smallest linearised lift-off force opens a
-# joint near the FRC peak (the orbits open a few per cent below the linearised value).
-OPENS_FRACTION = 0.9
 
 
 def frc_settings(settings, force: float, linear_liftoff_n):

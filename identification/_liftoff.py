@@ -8,11 +8,11 @@ import dataclasses
 import numpy as np
 
 import bsfs_jax
+from bsfs_jax.machine import JOINTS
 
 from ._forecast import ForecastError, from_hessian, locate_peak, value_jac_hess
 
 GRID = 2001  # frequencies over the band where each joint's receptance peak is sought
-JOINTS = ("bearing", "nut")
 
 
 @bsfs_jax.cached_jit
@@ -32,7 +32,7 @@ def _linear_liftoff_program(coords, theta, f_at):
     each at its own frequency `f_at[k]`."""
     import jax.numpy as jnp
 
-    from bsfs_jax.machine import linear_frf, linearise
+    from bsfs_jax.machine import joint_windows, linear_frf, linearise
 
     def fn(th):
         system = bsfs_jax.build_system(coords.at(th))
@@ -51,24 +51,6 @@ def _min_deformation_program(coords, theta, force, hint, joint):
 
     return jax.value_and_grad(lambda th, f: joint_min_deformation(
         coords.at(th), f, hint, joint), argnums=(0, 1))(theta, force)
-
-
-def joint_windows(system, x_eq):
-    """{joint: margin [m]}: how far each joint's relative displacement may move from
-    equilibrium (either way) before a side's contact deformation reaches zero
-    (`physics.contact_deformations`), from the pair's geometry."""
-    import jax.numpy as jnp
-
-    out = {}
-    for joint, pair, u_eq in (("bearing", system.bearing, x_eq[0]),
-                              ("nut", system.nut, x_eq[2] - x_eq[1])):
-        root = jnp.sqrt(pair.reach**2 - pair.radial_sq)
-        u_hi = pair.cos_helix * (pair.axial - root)
-        out[joint] = jnp.minimum(u_hi - u_eq, u_eq + u_hi)
-    return out
-
-
-JOINTS = ("bearing", "nut")
 
 
 def linear_liftoff(ident, start, stop):

@@ -283,6 +283,32 @@ def test_frc_peak_gradient_matches_continuation_peaks_on_a_folded_curve(frc_100n
     assert np.all(ad.normalised > 0)
 
 
+def test_auto_frc_goes_to_shooting_where_a_joint_opens(params):
+    """"auto" skips harmonic balance where the working force opens a joint near the peak
+    (there HB misses its 1e-6 estimate even at 64 harmonics, see FRC_100N): the linearised
+    lift-off force over the band lies between 10 N and 100 N on the default drive, and
+    each joint's equals the force at which its linear joint displacement reaches the
+    contact window (the relative displacement the preload deformation allows)."""
+    from bsfs_jax.design import OPENS_FRACTION, opens_joint
+    from bsfs_jax.machine import joint_windows, linear_frf, linear_liftoff_force, linearise, modes
+
+    f1 = float(modes(params).frequencies_hz[0])
+    lo, hi = FRC_100N.frc_band[0] * f1, FRC_100N.frc_band[1] * f1
+    assert opens_joint(params, 100.0, lo, hi) and not opens_joint(params, 10.0, lo, hi)
+    grid = jnp.linspace(lo, hi, 257)
+    system = build_system(params)
+    lift = np.asarray(linear_liftoff_force(system, grid))
+    assert 10.0 < OPENS_FRACTION * lift.min() < 100.0
+    # At that force the linear response's joint amplitudes touch the windows exactly.
+    win = joint_windows(system, linearise(system)[3])
+    h = np.asarray(linear_frf(system, grid))
+    amp = {"bearing": np.abs(h[:, 0]).max(), "nut": np.abs(h[:, 2] - h[:, 1]).max()}
+    for k, joint in enumerate(("bearing", "nut")):
+        assert lift[k] * amp[joint] == pytest.approx(float(win[joint]), rel=1e-12)
+        # and the window is the preload deformation scale: micrometres, not metres
+        assert 1e-7 < float(win[joint]) < 1e-4
+
+
 def test_frc_peak_equals_the_continue_peak(params, frc_100n, tmp_path):
     from bsfs_jax.cli import main
     from bsfs_jax.design import frc_peak_location

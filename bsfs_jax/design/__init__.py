@@ -32,6 +32,7 @@ from ._optimize import default_bounds as default_bounds
 from ._optimize import optimization_start as optimization_start
 from ._optimize import optimize as optimize
 from ._optimize import verify_by_simulation as verify_by_simulation
+from ._orbit import OPENS_FRACTION as OPENS_FRACTION
 from ._orbit import OrbitSettings as OrbitSettings
 from ._orbit import PeakHint as PeakHint
 from ._orbit import fold_frequency_value as fold_frequency_value
@@ -39,6 +40,7 @@ from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
 from ._orbit import frc_peak_value as frc_peak_value
 from ._orbit import frc_point_values as frc_point_values
 from ._orbit import locate_frc_peak as locate_frc_peak
+from ._orbit import opens_joint as opens_joint
 from ._orbit import peak_orbit_samples as peak_orbit_samples
 from ._orbit import periodic_orbit as periodic_orbit
 from ._orbit import point_hint as point_hint

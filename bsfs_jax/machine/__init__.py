@@ -6,14 +6,18 @@ optimistix.
 
 - `simulate` (checked, jitted), `simulate_core` (traceable), `Trajectory`, `Horizon`,
   `as_system`;
-- `equilibrium`, `linearise`, `modes`, `Modes`, `linear_frf`;
+- `equilibrium`, `linearise`, `modes`, `Modes`, `linear_frf`; the joints' contact
+  windows (`joint_windows`) and the linearised lift-off force (`linear_liftoff_force`);
 - `BSFSFamily`, `bsfs_family`: the one family protocol p -> (args, period) for
   continuation, orbit metrics and sweeps; `BSFS_SCALE`.
 """
 
+from ._equilibrium import JOINTS as JOINTS
 from ._equilibrium import Modes as Modes
 from ._equilibrium import equilibrium as equilibrium
+from ._equilibrium import joint_windows as joint_windows
 from ._equilibrium import linear_frf as linear_frf
+from ._equilibrium import linear_liftoff_force as linear_liftoff_force
 from ._equilibrium import linearise as linearise
 from ._equilibrium import modes as modes
 from ._equilibrium import tangent_matrices as tangent_matrices

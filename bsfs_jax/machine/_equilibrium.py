@@ -163,3 +163,33 @@ def linear_frf(model, frequencies_hz, static_force_n=0.0, *, throw: bool = True)
         return jnp.linalg.solve(dyn.astype(complex), rhs)
 
     return jax.vmap(one)(omega)
+
+
+JOINTS = ("bearing", "nut")
+
+
+def joint_windows(system, x_eq):
+    """{joint: margin [m]}: how far each joint's relative displacement (bearing: x_b; nut:
+    x_n - x_s) may move from the equilibrium `x_eq` (either way) before a side's contact
+    deformation reaches zero (`physics.contact_deformations`), from the pair's geometry."""
+    out = {}
+    for joint, pair, u_eq in (("bearing", system.bearing, x_eq[0]),
+                              ("nut", system.nut, x_eq[2] - x_eq[1])):
+        root = jnp.sqrt(pair.reach**2 - pair.radial_sq)
+        u_hi = pair.cos_helix * (pair.axial - root)
+        out[joint] = jnp.minimum(u_hi - u_eq, u_eq + u_hi)
+    return out
+
+
+def linear_liftoff_force(model, frequencies_hz):
+    """(len(JOINTS),) [N]: per joint the smallest sinusoidal force amplitude on the nut at
+    which the linearised response's joint displacement reaches its contact window at one
+    of `frequencies_hz` (a grid over a band: the largest joint receptance there). Above it
+    the joint opens in the linear model; the nonlinear orbits open a few per cent lower
+    near a resonance. Traceable."""
+    system = as_system(model)
+    k, c, m, x_eq = linearise(system)
+    win = joint_windows(system, x_eq)
+    h = linear_frf(system, frequencies_hz)
+    rec = {"bearing": jnp.max(jnp.abs(h[:, 0])), "nut": jnp.max(jnp.abs(h[:, 2] - h[:, 1]))}
+    return jnp.stack([win[j] / rec[j] for j in JOINTS])
