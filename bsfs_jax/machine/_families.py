@@ -57,8 +57,8 @@ class BSFSFamily(eqx.Module):
 
     def prepare(self) -> "BSFSFamily":
         """This family with its system built once (`build_system`), where the system does
-        not depend on the family's parameter (frequency or force). The continuation's
-        corrector calls it once per point: without it every residual in its Newton loops
+        not depend on the family's parameter (frequency or force). The continuation calls it
+        once, before its corrector: without it every residual in the corrector's loops
         rebuilt the coefficients and the thermal chain, four times the vector field's
         program size in each copy (the compiled corrector was 16 400 HLO lines, 4.2 s)."""
         if self.param not in (FREQUENCY, FORCE) or self.system is not None:

@@ -55,7 +55,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     - `family`: p -> (args, period) (a function or an `eqx.Module`, whose arrays are
       traced, so new values do not recompile); may carry `vector_field` and `scale`, and
       `prepare()`, returning the same family with the work that does not depend on p done
-      once (the corrector calls it once per point, outside its Newton loops).
+      once (called once, before the corrector; `_kernel.prepare_outside`).
     - `y_guess`: a state near the orbit at p_start, t = 0 (the end of a transient).
     - `p_start`, `p_stop`: the run stops once p leaves the interval between them (it may
       fold back and forth inside); with `trim` the last point is moved onto the bound.
@@ -216,8 +216,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
         if bar is not None:
             bar.close()
 
-    if kernel_max is not kernel:  # events are located with the most harmonics used
-        kernel = kernel_max
+    kernel = kernel_max  # events are located with the most harmonics used
     if h_min is not None:  # every point in the unknowns of that harmonic count
         points = [p if p.u.size == _size(kernel) else kernel.convert(p) for p in points]
     bifurcations, peaks = [], []

@@ -139,14 +139,15 @@ class HarmonicBalance(AbstractOrbitMethod):
         zs = jnp.where(jnp.isfinite(zs), zs, 0.0)
         return self._to_coeffs(zs)
 
-    def from_coefficients(self, other: "HarmonicBalance", z, d):
-        """Unknowns of this method from another HB's unknowns (padding or truncating)."""
+    def from_coefficients(self, other: "HarmonicBalance", z, d, xp=jnp):
+        """Unknowns of this method from another HB's unknowns (padding or truncating).
+        `xp=numpy` for host-side arrays (no op-by-op programs)."""
         c0, a, b = other._unpack(z, d)
         h = self.harmonics
         pad = max(0, h - other.harmonics)
-        a = jnp.concatenate([a, jnp.zeros((pad, d))])[:h]
-        b = jnp.concatenate([b, jnp.zeros((pad, d))])[:h]
-        return jnp.concatenate([c0, a.reshape(-1), b.reshape(-1)])
+        a = xp.concatenate([a, xp.zeros((pad, d))])[:h]
+        b = xp.concatenate([b, xp.zeros((pad, d))])[:h]
+        return xp.concatenate([c0, a.reshape(-1), b.reshape(-1)])
 
     def residual(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         d = scale.shape[0]

@@ -51,19 +51,9 @@ def family_amplitudes(family, vector_field, method, scale, p_scale, n_periods, u
                             ode_adjoint or dfx.ForwardMode())
 
 
-def prepared(family):
-    """`family.prepare()` where the family has one (an optional part of the protocol: the
-    family with its parameter-independent work done once, e.g. a model built from fixed
-    parameters), else the family itself. Called once per corrector call, outside its
-    Newton loops."""
-    prepare = getattr(family, "prepare", None)
-    return prepare() if callable(prepare) else family
-
-
 def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, max_iter,
                   amplitude_index, u_pred, tangent, chord_lu):
     TRACE_COUNTS["corrector"] += 1
-    family = prepared(family)
     n = u_pred.shape[0] - 1
 
     def augmented(u, data):
@@ -100,9 +90,11 @@ def _prepare_jit(family):
 
 
 def prepare_outside(family):
-    """The family prepared by its own small program (where it has `prepare`), so that the
-    parameter-independent work is neither compiled into every corrector program nor run
-    op by op."""
+    """`family.prepare()` (an optional part of the family protocol: the family with the
+    work that does not depend on the continued parameter done once) by its own small
+    program, where the family has one; else the family itself. `continue_orbits` calls it
+    once, so that work is neither compiled into every corrector program nor run op by
+    op."""
     return _prepare_jit(family) if callable(getattr(family, "prepare", None)) else family
 
 
@@ -170,19 +162,14 @@ class Kernel:
         return dataclasses.replace(self, method=method, _fn=None, _dyn=None, _no_chord=None)
 
     def convert(self, point: HostPoint) -> HostPoint:
-        """A point of the previous (smaller) harmonic count in this kernel's unknowns."""
+        """A point of another harmonic count in this kernel's unknowns (host side)."""
         d = int(np.asarray(self.scale).shape[0])
-        h_new = int(self.method.harmonics)
+        old = self.method.with_harmonics((point.u.size - 1) // d // 2)
 
-        def pad(v):  # (c0, a_1..a_H, b_1..b_H) in the new harmonic count (host side)
-            z, p = np.asarray(v[:-1]), v[-1:]
-            h_old = (z.size // d - 1) // 2
-            a = np.zeros((h_new, d))
-            b = np.zeros((h_new, d))
-            keep = min(h_old, h_new)
-            a[:keep] = z[d:d + h_old * d].reshape(h_old, d)[:keep]
-            b[:keep] = z[d + h_old * d:].reshape(h_old, d)[:keep]
-            return np.concatenate([z[:d], a.ravel(), b.ravel(), p])
+        def pad(v):
+            v = np.asarray(v)
+            return np.concatenate([self.method.from_coefficients(old, v[:-1], d, xp=np),
+                                   v[-1:]])
 
         u, t = pad(point.u), pad(point.tangent)
         return dataclasses.replace(point, u=u, tangent=t / np.linalg.norm(t), jacobian=None,
