@@ -46,6 +46,8 @@ def main():
     p.add_argument("--blocks", type=ints, default=[32],
                    help="kernel lanes per program to time at the largest --points")
     p.add_argument("--budget", type=float, default=420.0)
+    p.add_argument("--kernel-fast", type=int, default=1,
+                   help="SweepConfig.kernel_fast for the kernel engine (1 or 0)")
     p.add_argument("--variants", type=ints, default=[],
                    help="instead of the cases: time the kernel alone (integrate_lanes) at "
                    "these point counts for each block size in VARIANTS")
@@ -66,6 +68,7 @@ def main():
 
     dev = jax.devices()[0]
     info = {"case": "machine", "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+            "kernel_fast": bool(args.kernel_fast),
             "device": str(getattr(dev, "device_kind", dev)), "backend": jax.default_backend(),
             "jax": jax.__version__, "cpu_threads": os.cpu_count()}
 
@@ -84,7 +87,7 @@ def main():
     def config(n, engine, **kw):
         base = dict(transient_periods=n_tr, periods=n_samp, samples_per_period=1,
                     lyapunov=False, batch_size=n, chunk_size=n, engine=engine,
-                    settings=settings)
+                    settings=settings, kernel_fast=bool(args.kernel_fast))
         base.update(kw)
         return SweepConfig(**base)
 

@@ -4,7 +4,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ..machine import FORCE, FREQUENCY, BSFSFamily, parameter_unit
-from ..model import vector_field, vector_field_components
+from ..model import kernel_vector_field, vector_field
 from ..params import BallScrewParams, lookup_key
 
 STATE_NAMES = ("x_b", "x_s", "x_n", "v_b", "v_s", "v_n")
@@ -56,4 +56,4 @@ def bsfs_problem(params: BallScrewParams, param: str = FREQUENCY, *, frequency_h
     return SweepProblem(vector_field, BSFSSetup(param), data,
                         jnp.zeros(6) if y0 is None else y0, param, parameter_unit(param),
                         observe, STATE_NAMES, STATE_UNITS, "s",
-                        component_field=vector_field_components)
+                        component_field=kernel_vector_field)

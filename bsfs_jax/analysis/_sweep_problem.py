@@ -42,6 +42,9 @@ class SweepConfig:
       and meant for tests; needs the problem's `component_field`, without `lyapunov`), or
       "auto" (the default: "kernel" on a GPU where it applies, else "map").
     - `kernel_block`: kernel engine: points per Triton program (one warp runs 32).
+    - `kernel_fast`: kernel engine: the controller's arithmetic without float64 divisions
+      and powers (`integrate_lanes(fast=True)`, the default); False repeats the fused
+      loop's controller to the bit. The field is the problem's `component_field` either way.
     - `max_slice_periods`: queue engine: at most this many periods per slice.
     - `settings`: `SolverSettings` (tolerances, max_steps, solver; default the fused
       Dormand-Prince 5(4) loop "dopri5-fused", or any diffrax solver name).
@@ -58,6 +61,7 @@ class SweepConfig:
     window: str = "hann"
     engine: str = "auto"
     kernel_block: int = 32
+    kernel_fast: bool = True
     max_slice_periods: int = 64
     # Sweeps are forward-only, so they default to the fused Dormand-Prince loop (about 3x
     # cheaper per step than diffrax's general loop here; cross-checked in tests/test_fused.py).

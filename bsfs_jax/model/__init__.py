@@ -2,6 +2,7 @@
 
 from ._dynamics import accelerations as accelerations
 from ._dynamics import joint_forces as joint_forces
+from ._dynamics import kernel_vector_field as kernel_vector_field
 from ._dynamics import mechanical_energy as mechanical_energy
 from ._dynamics import restoring_forces as restoring_forces
 from ._dynamics import vector_field as vector_field

@@ -13,23 +13,27 @@ from .. import physics
 from ._system import System
 
 
-def _internal_forces(system: System, x_b, x_s, x_n, v_b, v_s, v_n):
+def _internal_forces(system: System, x_b, x_s, x_n, v_b, v_s, v_n, fast=False):
     """Elastic + viscous forces of the three joints (bearing, screw, nut) [N], elementwise.
 
     Written on scalars (broadcasting over any leading axes) so that the vector field, which
     runs at every solver stage, is a handful of fused scalar operations.
     """
     c_b, c_s, c_n = system.damping[0], system.damping[1], system.damping[2]
-    f_b = physics.pair_force(x_b, system.bearing) + c_b * v_b
+    f_b = physics.pair_force(x_b, system.bearing, fast) + c_b * v_b
     f_s = system.screw_stiffness * (x_s - x_b) + c_s * (v_s - v_b)
-    f_n = physics.pair_force(x_n - x_s, system.nut) + c_n * (v_n - v_s)
+    f_n = physics.pair_force(x_n - x_s, system.nut, fast) + c_n * (v_n - v_s)
     return f_b, f_s, f_n
 
 
-def _accelerations(system: System, x_b, x_s, x_n, v_b, v_s, v_n, force):
-    """Eq. 31 solved for (x_b'', x_s'', x_n'') [m/s^2], elementwise."""
-    f_b, f_s, f_n = _internal_forces(system, x_b, x_s, x_n, v_b, v_s, v_n)
-    m = system.mass
+def _accelerations(system: System, x_b, x_s, x_n, v_b, v_s, v_n, force, fast=False):
+    """Eq. 31 solved for (x_b'', x_s'', x_n'') [m/s^2], elementwise (`fast`: products by
+    1 / m, a constant of the run, instead of divisions; see `physics.pair_force`)."""
+    f_b, f_s, f_n = _internal_forces(system, x_b, x_s, x_n, v_b, v_s, v_n, fast)
+    m = system.mass  # an array, or a tuple of per-lane arrays in the kernel
+    if fast:
+        return ((f_s - f_b) * (1.0 / m[0]), (f_n - f_s) * (1.0 / m[1]),
+                (force - f_n) * (1.0 / m[2]))
     return (f_s - f_b) / m[0], (f_n - f_s) / m[1], (force - f_n) / m[2]
 
 
@@ -54,13 +58,19 @@ def accelerations(system: System, x, v, force):
     return jnp.stack(_accelerations(system, *_split(x), *_split(v), force), axis=-1)
 
 
-def vector_field_components(t, y, args):
+def vector_field_components(t, y, args, fast=False):
     """The vector field on a tuple of the six state components, elementwise (each component
     any shape; `args`' leaves may be per-lane arrays, or tuples for vector fields): the
-    form the per-lane integrator kernel (`solvers.integrate_lanes`) runs."""
+    form the per-lane integrator kernel (`solvers.integrate_lanes`) runs. `fast`: the
+    force law without divisions or square roots (see `physics.pair_force`)."""
     system, forcing = args
-    acc = _accelerations(system, y[0], y[1], y[2], y[3], y[4], y[5], forcing(t))
+    acc = _accelerations(system, y[0], y[1], y[2], y[3], y[4], y[5], forcing(t), fast)
     return (y[3], y[4], y[5], *acc)
+
+
+def kernel_vector_field(t, y, args):
+    """`vector_field_components` with `fast=True`: what the GPU kernel engine runs."""
+    return vector_field_components(t, y, args, fast=True)
 
 
 def vector_field(t, y, args):
