@@ -153,8 +153,8 @@ def _trajectory(f=500.0, spp=64, periods=20):
     v = 1e-6 * w * np.cos(w * t) + 0.3e-6 * w * np.cos(3 * w * t)
     state = np.zeros((t.size, 6))
     state[:, 2], state[:, 5] = x, v
-    return SimpleNamespace(t=t, state=state, displacement=state[:, :3], samples_per_period=spp,
-                           period=1.0 / f)
+    return SimpleNamespace(t=t, state=state, displacement=state[:, :3], velocity=state[:, 3:],
+                           samples_per_period=spp, period=1.0 / f)
 
 
 def _branch():

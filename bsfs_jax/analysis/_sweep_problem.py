@@ -6,8 +6,8 @@ from typing import Any
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 
+from .._numerics import float_array
 from ..solvers import RESULTS, SolverSettings, result_codes
 
 MODES = ("cold", "continued")
@@ -112,7 +112,7 @@ class SweepProblem(eqx.Module):
     vector_field: Callable = eqx.field(static=True)
     setup: Callable = eqx.field(static=True)
     data: Any
-    y0: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    y0: jax.Array = eqx.field(converter=float_array)
     param: str = eqx.field(static=True)
     unit: str = eqx.field(static=True, default="")
     observe: int = eqx.field(static=True, default=0)

@@ -108,7 +108,6 @@ def run_simulate(args) -> int:
 
     from ..machine import simulate
     from ..params import params_summary
-    from ..plotting import response_figure, trajectory_spectrum
 
     if not args.frequency > 0:
         raise ui.CLIError(f"--frequency must be positive, got {args.frequency}")
@@ -132,6 +131,8 @@ def run_simulate(args) -> int:
                     samples_per_period=args.samples_per_period, rtol=args.rtol, atol=args.atol,
                     max_steps=args.max_steps, solver=args.solver,
                     progress=ui.progress_enabled(args) and args.solver != "dopri5-fused")
+    from ..plotting import response_figure, trajectory_spectrum
+
     t = np.asarray(traj.t)
     x = np.asarray(traj.displacement)
     v = np.asarray(traj.velocity)
@@ -193,7 +194,7 @@ def run_simulate(args) -> int:
     fig = response_figure(traj, title=f"BSFS response: {args.frequency:g} Hz, {args.force:g} N, "
                           f"{float(params.thermal.speed_rpm):g} r/min, thermal "
                           f"{'on' if params.thermal.enabled else 'off'}")
-    ui.save_figure(fig, folder / "response.png")
+    ui.save_figure(fig, folder / "response.png", tight=False)  # laid out by tight_layout
     summary["steady_state"] = _steady_state(args, params, traj, amp, x, v)
     summary["runtime_s"] = time.perf_counter() - started
     ui.write_json(folder / "summary.json", summary)

@@ -20,6 +20,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._numerics import float_array
 from ..machine import linear_frf, modes
 from ..model import Sinusoid, build_system, vector_field
 from ..solvers import SHOOTING_SETTINGS, ImplicitReverse, variational_monodromy
@@ -29,8 +30,8 @@ from ._orbit import OrbitSettings, frc_peak_value, locate_frc_peak, operating_or
 class OperatingPoint(eqx.Module):
     """Excitation P sin(2 pi f t) on the nut: `frequency_hz` [Hz] and `force_n` [N]."""
 
-    frequency_hz: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    force_n: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    frequency_hz: jax.Array = eqx.field(converter=float_array)
+    force_n: jax.Array = eqx.field(converter=float_array)
 
     @property
     def forcing(self) -> Sinusoid:

@@ -14,6 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._numerics import float_array
 from ..model import Sinusoid, build_system, vector_field
 from ..params import BallScrewParams, lookup_key, validate
 from ..solvers import is_concrete
@@ -49,8 +50,8 @@ class BSFSFamily(eqx.Module):
     """
 
     params: BallScrewParams
-    frequency_hz: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    force_n: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
+    frequency_hz: jax.Array = eqx.field(converter=float_array)
+    force_n: jax.Array = eqx.field(converter=float_array)
     param: str = eqx.field(static=True, default=FREQUENCY)
     #: The built system, once `prepare` has built it (families in frequency or force only).
     system: object = None

@@ -4,13 +4,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._numerics import float_array
+
 
 class Sinusoid(eqx.Module):
     """P sin(2 pi f t + phase) [N] (the paper's excitation, Eq. 31)."""
 
-    amplitude: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    frequency: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    phase: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float), default=0.0)
+    amplitude: jax.Array = eqx.field(converter=float_array)
+    frequency: jax.Array = eqx.field(converter=float_array)
+    phase: jax.Array = eqx.field(converter=float_array, default=0.0)
 
     @property
     def period(self):
@@ -26,10 +28,10 @@ class HarmonicForcing(eqx.Module):
     For exciter records: the measured force's fitted harmonics drive the model.
     """
 
-    frequency: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    cos_coeffs: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    sin_coeffs: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float))
-    offset: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=float), default=0.0)
+    frequency: jax.Array = eqx.field(converter=float_array)
+    cos_coeffs: jax.Array = eqx.field(converter=float_array)
+    sin_coeffs: jax.Array = eqx.field(converter=float_array)
+    offset: jax.Array = eqx.field(converter=float_array, default=0.0)
 
     @property
     def period(self):

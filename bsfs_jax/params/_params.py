@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._numerics import float_array
 from ._vocabulary import BY_NAME, BY_SECTION, PLAUSIBLE, SECTIONS, Key
 
 
@@ -36,7 +37,7 @@ def one_line(text, limit: int = 80) -> str:
 
 
 def _arr(x):
-    return x if x is None else jnp.asarray(x, dtype=float)
+    return x if x is None else float_array(x)
 
 
 class Masses(eqx.Module):

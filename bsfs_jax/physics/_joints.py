@@ -13,6 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._numerics import float_array
 from ._safe import pos_pow
 
 
@@ -53,7 +54,7 @@ def preloaded_pair(balls, ball_diameter, conformity_1, conformity_2, contact_ang
 
     Q0 = F_p / (Z sin(beta) cos(lambda)), delta0 = K Q0^(2/3), A = A0 + delta0.
     """
-    f = lambda x: jnp.asarray(x, dtype=float)
+    f = float_array
     balls, hertz_k, angle, cos_helix, offset = map(f, (balls, hertz_k, contact_angle,
                                                       cos_helix, offset))
     a0 = (f(conformity_1) + f(conformity_2) - 1.0) * f(ball_diameter)

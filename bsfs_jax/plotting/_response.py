@@ -28,7 +28,8 @@ def response_figure(traj, *, title: str = "", dof: int = 2,
     `simulate`'s summary lists as dominant is on it), at least at the 2nd harmonic of the
     forcing; `max_harmonic` caps it at that many harmonics instead.
     """
-    state = np.asarray(traj.state)
+    # On the host: `traj.state` would compile a concatenation program for one figure.
+    state = np.concatenate([np.asarray(traj.displacement), np.asarray(traj.velocity)], axis=-1)
     strobe = state[:: traj.samples_per_period][:, [dof, dof + 3]]
     freqs, amp = trajectory_spectrum(traj, dof)
     f0 = 1.0 / float(traj.period)
