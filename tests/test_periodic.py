@@ -174,6 +174,27 @@ def test_harmonic_balance_matches_shooting_on_the_bsfs(bsfs_point):
     np.testing.assert_allclose(mu_hb, mu_sh, atol=5e-5)
 
 
+def test_harmonic_balance_jacobian_from_the_aft_equals_forward_mode(bsfs_point):
+    """The corrector's assembled HB Jacobian (convolution of the field Jacobian's DFT) is
+    the forward-mode Jacobian of the residual to rounding, through contact loss (5000 N),
+    at the orbit and off it, for an odd and an even harmonic count."""
+    from bsfs_jax.solvers._newton import residual_and_jacobian
+
+    family, args, period, guess, _ = bsfs_point
+    vf, scale = family.vector_field, family.scale
+    for h in (7, 16):
+        hb = HarmonicBalance(harmonics=h, max_harmonics=h)
+        orbit = periodic_orbit(vf, guess, args, period, scale=scale, method=hb, throw=False)
+        for z in (orbit.unknowns, orbit.unknowns + 1e-2 * jnp.sin(
+                jnp.arange(orbit.unknowns.shape[0]))):
+            r_ad, j_ad = residual_and_jacobian(
+                lambda v, _: hb.residual(vf, v, args, period, 1, scale), z, None)
+            r, j = hb.residual_and_jacobian(vf, z, args, period, 1, scale)
+            # the same residual, fused differently: equal to rounding (unknowns are O(1))
+            assert float(jnp.max(jnp.abs(r - r_ad))) <= 1e-12
+            assert float(jnp.max(jnp.abs(j - j_ad))) <= 1e-13 * float(jnp.max(jnp.abs(j_ad)))
+
+
 @pytest.mark.parametrize("method", [Shooting(), HarmonicBalance(harmonics=32,
                                                                 max_harmonics=32)],
                          ids=["shooting", "harmonic-balance"])

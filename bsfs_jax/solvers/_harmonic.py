@@ -15,6 +15,12 @@ a Galerkin projection on the first H harmonics (N = 4H samples keep aliasing of 
 nonlinear terms small). Dividing by Omega makes the residual dimensionless, of the order
 of the unknowns.
 
+**Jacobian.** Newton's dR/dz is assembled from the field's Jacobian at the N samples:
+its DFT, convolved with the harmonics (`residual_and_jacobian`), the exact derivative of the
+AFT residual (aliasing included) at the cost of d forward passes of the field per sample
+and d^2 FFTs, where forward mode through the residual took one pass of everything per
+unknown, d (2H + 1) of them (at H = 32 on the ball screw: 0.7 ms against 1.7 ms).
+
 **Error estimate.** HB zeroes the first H harmonics of the defect z' - g(t, z) but not the
 rest. `error_estimate` evaluates the reconstructed orbit and its derivative on a grid
 eight times finer than the AFT grid (the time-domain residual of the reconstruction) and
@@ -32,15 +38,67 @@ Jacobian) was not used: it returns d (2H + 1) exponents of which d must be picke
 sorting heuristic that fails near bifurcations, where the answer matters most.
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._method import AbstractOrbitMethod
 from ._results import RESULTS
 from ._shooting import SHOOTING_SETTINGS, Scaled, flow
 
 _MAGNUS_STEPS = 256  # Runge-Kutta steps per orbit period for the monodromy
+
+
+@functools.lru_cache(maxsize=16)
+def _aft_jacobian_layout(h: int, n: int):
+    """Static gather layout of the AFT Jacobian (`HarmonicBalance.residual_and_jacobian`).
+
+    Blocks (r, c) over r, c in [c_0, a_1..a_H, b_1..b_H]; each block is
+    c1 * table[w1] + c2 * table[w2], table = [alpha_0..alpha_(N-1), beta_0..beta_(N-1)]
+    (Ahat_m = alpha_m + i beta_m). From dP_k/dc_0 = Ahat_k,
+    dP_k/da_l = (Ahat_(k-l) + Ahat_(k+l)) / 2, dP_k/db_l = i (Ahat_(k+l) - Ahat_(k-l)) / 2
+    and the real rows Re P_0, 2 Re P_k (a_k), -2 Im P_k (b_k)."""
+    size = 2 * h + 1
+    w1 = np.zeros((size, size), np.int32)
+    w2 = np.zeros((size, size), np.int32)
+    c1 = np.zeros((size, size))
+    c2 = np.zeros((size, size))
+    alpha = lambda m: m % n  # noqa: E731
+    beta = lambda m: n + m % n  # noqa: E731
+    for r in range(size):
+        k = 0 if r == 0 else (r - 1) % h + 1
+        kind = "c" if r == 0 else ("a" if r <= h else "b")
+        # Re P_k (times 1 for c_0, 2 for a_k) or Im P_k (times -2 for b_k)
+        f = 1.0 if kind == "c" else (2.0 if kind == "a" else -2.0)
+        re = kind != "b"
+        for c in range(size):
+            l_ = 0 if c == 0 else (c - 1) % h + 1
+            ckind = "c" if c == 0 else ("a" if c <= h else "b")
+            if ckind == "c":  # Ahat_k
+                w1[r, c], c1[r, c] = (alpha(k), f) if re else (beta(k), f)
+            elif ckind == "a":  # (Ahat_(k-l) + Ahat_(k+l)) / 2
+                w1[r, c], w2[r, c] = (alpha(k - l_), alpha(k + l_)) if re else \
+                    (beta(k - l_), beta(k + l_))
+                c1[r, c] = c2[r, c] = 0.5 * f
+            else:  # i (Ahat_(k+l) - Ahat_(k-l)) / 2: Re = -(beta_+ - beta_-) / 2,
+                # Im = (alpha_+ - alpha_-) / 2
+                w1[r, c], w2[r, c] = (beta(k + l_), beta(k - l_)) if re else \
+                    (alpha(k + l_), alpha(k - l_))
+                c1[r, c], c2[r, c] = (-0.5 * f, 0.5 * f) if re else (0.5 * f, -0.5 * f)
+    return w1, w2, c1, c2
+
+
+@functools.lru_cache(maxsize=16)
+def _derivative_blocks(h: int):
+    """(2H+1) x (2H+1): +k at (a_k, b_k), -k at (b_k, a_k): d/d(Omega t) in the residual."""
+    out = np.zeros((2 * h + 1, 2 * h + 1))
+    for k in range(1, h + 1):
+        out[k, h + k] = k
+        out[h + k, k] = -k
+    return out
 
 
 class HarmonicBalance(AbstractOrbitMethod):
@@ -58,6 +116,7 @@ class HarmonicBalance(AbstractOrbitMethod):
 
     name = "harmonic balance"
     uses_chord = True  # a residual costs far less than a Jacobian + LU: chord first
+    assembled_jacobian = True  # from the AFT of the field's Jacobian
 
     def __check_init__(self):
         if int(self.harmonics) < 1:
@@ -162,6 +221,47 @@ class HarmonicBalance(AbstractOrbitMethod):
         k = jnp.arange(1, self.harmonics + 1)[:, None]
         g0, ga, gb = self._unpack(gc, d)
         return jnp.concatenate([-g0, (k * b - ga).reshape(-1), (-k * a - gb).reshape(-1)])
+
+    def residual_and_jacobian(self, vector_field, z, args, period, n_periods, scale):
+        """(R(z), dR/dz) with the Jacobian assembled from the AFT of the field's Jacobian.
+
+        With A_j = dg/dz at the N samples and Ahat_m their DFT / N (d x d each), the
+        coefficients P_k of A(t) y(t) on the AFT grid are the cyclic convolution
+        sum_l Ahat_(k - l mod N) Y_l of the complex harmonics Y_l (Y_0 = c_0,
+        Y_(+-l) = (a_l -+ i b_l) / 2), exactly as the residual's FFTs compute them. So
+        dP_k/dc_0 = Ahat_k, dP_k/da_l = (Ahat_(k-l) + Ahat_(k+l)) / 2 and
+        dP_k/db_l = i (Ahat_(k+l) - Ahat_(k-l)) / 2, and the real rows are Re P_0,
+        2 Re P_k, -2 Im P_k. One Jacobian of the field per sample and d^2 FFTs, instead of
+        one forward-mode pass of the whole residual per unknown (d (2H + 1) of them):
+        equal to `jax.jacfwd` of `residual` to rounding (tested)."""
+        d = scale.shape[0]
+        n = self.n_samples
+        h = self.harmonics
+        t_end = n_periods * period
+        omega = 2.0 * jnp.pi / t_end
+        ts = t_end * jnp.arange(n) / n
+        zs = self._to_time(z, d, n)
+        field = Scaled(vector_field)
+
+        def value_and_a(t, zz):
+            f = lambda v: field(t, v, (args, scale))  # noqa: E731
+            return f(zz), jax.jacfwd(f)(zz)
+
+        g, a = jax.vmap(value_and_a)(ts, zs)
+        gc = self._to_coeffs(g) / omega
+        c0, ca, cb = self._unpack(z, d)
+        k = jnp.arange(1, h + 1)[:, None]
+        g0, ga, gb = self._unpack(gc, d)
+        r = jnp.concatenate([-g0, (k * cb - ga).reshape(-1), (-k * ca - gb).reshape(-1)])
+        # Ahat_m = alpha_m + i beta_m, m = 0..N-1 (negative m wrap around), (N, d, d).
+        ahat = jnp.fft.fft(a, axis=0) / n
+        table = jnp.concatenate([ahat.real, ahat.imag])  # alpha at m, beta at N + m
+        w1, w2, c1, c2 = _aft_jacobian_layout(h, n)
+        blocks = c1[..., None, None] * table[w1] + c2[..., None, None] * table[w2]
+        m = jnp.transpose(blocks, (0, 2, 1, 3)).reshape((2 * h + 1) * d, (2 * h + 1) * d)
+        # dR/dz = D - M / omega, D: +k on (a_k rows, b_k cols), -k on (b_k rows, a_k cols).
+        dmat = jnp.kron(_derivative_blocks(h), jnp.eye(d))
+        return r, dmat - m / omega
 
     def chord(self, vector_field, z, args, period, n_periods, scale, jacobian, steps: int):
         """`steps` chord iterations z <- z - J^-1 R(z) of this method's residual from z,

@@ -61,8 +61,23 @@ def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, 
         r = family_residual(family, vector_field, method, scale, p_scale, n_periods, u)
         return jnp.concatenate([r, jnp.dot(t, u - u_p)[None]])
 
+    def assembled(u, data):
+        """The augmented residual and Jacobian, dR/dz from the method's own assembly, dR/dp
+        by one forward-mode pass in the parameter, the arclength row."""
+        u_p, t = data
+        args, period = family(u[n] * p_scale)
+        r, r_z = method.residual_and_jacobian(vector_field, u[:n], args, period, n_periods,
+                                              scale)
+        r_p = jax.jvp(lambda q: family_residual(family, vector_field, method, scale, p_scale,
+                                                n_periods, jnp.concatenate([u[:n], q[None]])),
+                      (u[n],), (jnp.ones_like(u[n]),))[1]
+        f = jnp.concatenate([r, jnp.dot(t, u - u_p)[None]])
+        jac = jnp.concatenate([jnp.concatenate([r_z, r_p[:, None]], axis=1), t[None, :]])
+        return f, jac
+
     sol = newton(augmented, u_pred, (u_pred, tangent), tol=tol, max_steps=max_iter,
-                 chord_lu=chord_lu, keep_lu=True)
+                 chord_lu=chord_lu, keep_lu=True,
+                 jacobian_fn=assembled if method.assembled_jacobian else None)
     u = sol.value
     jac_r = sol.jacobian[:n]
     # sol.jacobian = [R_u; tangent]: its LU gives the new tangent and starts the next

@@ -17,13 +17,16 @@ class AbstractOrbitMethod(eqx.Module):
     """A discretisation of a periodic orbit of period n T: its unknowns z (scaled by
     `scale`), its residual R(z) = 0, and what follows from a solution.
 
-    Class attributes: `name` (for messages and reports) and `uses_chord` (whether the
+    Class attributes: `name` (for messages and reports), `uses_chord` (whether the
     continuation corrector tries chord iterations with a neighbour's Newton matrix first:
-    worth it where a residual costs far less than a Jacobian).
+    worth it where a residual costs far less than a Jacobian) and `assembled_jacobian`
+    (whether `residual_and_jacobian` assembles dR/dz more cheaply than forward mode through
+    the residual; then the corrector uses it).
     """
 
     name: eqx.AbstractClassVar[str]
     uses_chord: eqx.AbstractClassVar[bool]
+    assembled_jacobian: eqx.AbstractClassVar[bool]
 
     @abc.abstractmethod
     def init(self, vector_field, y_guess, args, period, n_periods, scale):
@@ -32,6 +35,10 @@ class AbstractOrbitMethod(eqx.Module):
     @abc.abstractmethod
     def residual(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         """R(z), zero on the orbit."""
+
+    @abc.abstractmethod
+    def residual_and_jacobian(self, vector_field, z, args, period, n_periods, scale):
+        """(R(z), dR/dz)."""
 
     @abc.abstractmethod
     def initial_state(self, z, scale):

@@ -79,7 +79,8 @@ def _chord(fn, u0, data, lu, tol_abs, max_steps):
 
 
 def newton(fn, u0, data, *, tol: float, max_steps: int, max_halvings: int = 4,
-           chord_lu=None, chord_steps: int = 8, keep_lu: bool = False) -> NewtonSolution:
+           chord_lu=None, chord_steps: int = 8, keep_lu: bool = False,
+           jacobian_fn=None) -> NewtonSolution:
     """Solve F(u, data) = 0 from `u0` (dense Newton; see the module docstring).
 
     **Arguments:**
@@ -94,6 +95,8 @@ def newton(fn, u0, data, *, tol: float, max_steps: int, max_halvings: int = 4,
       always evaluated at the returned point.
     - `keep_lu`: also return the LU factors of that Jacobian (the continuation's next
       tangent and chord matrix); they are computed anyway, except at the last point.
+    - `jacobian_fn`: (F(u), dF/du) = jacobian_fn(u, data), where the caller assembles the
+      Jacobian more cheaply than forward mode through `fn` (default: forward mode).
 
     The loop evaluates F and dF/du once per pass, at the trial point, and then accepts it
     (converged, out of steps, singular) or takes the next step, or halves the step when F
@@ -124,7 +127,8 @@ def newton(fn, u0, data, *, tol: float, max_steps: int, max_halvings: int = 4,
     def body(c):
         base, du, step, halvings, k, _, _, f_old, jac_old, lu_old = c
         u = base + step * du
-        f, jac = residual_and_jacobian(fn, u, data)
+        f, jac = (residual_and_jacobian(fn, u, data) if jacobian_fn is None
+                  else jacobian_fn(u, data))
         finite = jnp.all(jnp.isfinite(f))
         # A non-finite trial residual (after the first point) halves the step.
         retry = ~finite & (k > 0) & (halvings < max_halvings)

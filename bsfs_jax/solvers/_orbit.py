@@ -143,8 +143,13 @@ class _Residual(eqx.Module):
 def _solve_core(method, vector_field, z0, args, period, scale, n_periods, tol, max_steps,
                 adjoint, stability=True):
     fwd_residual = _Residual(method, vector_field, n_periods, scale, None)
+    assembled = None
+    if method.assembled_jacobian:
+        def assembled(z, theta):
+            return method.residual_and_jacobian(vector_field, z, theta[0], theta[1],
+                                                n_periods, scale)
     sol = newton(lambda z, th: fwd_residual(z, th), z0, (args, period), tol=tol,
-                 max_steps=max_steps)
+                 max_steps=max_steps, jacobian_fn=assembled)
     z_star = jax.lax.stop_gradient(sol.value)
     d = scale.shape[0]
     if stability:

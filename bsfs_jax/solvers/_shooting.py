@@ -20,6 +20,7 @@ import jax.numpy as jnp
 
 from ._integrate import SolverSettings, integrate
 from ._method import AbstractOrbitMethod
+from ._newton import residual_and_jacobian
 
 #: ODE settings for shooting. Newton needs a period map that is smooth well below its
 #: tolerance; an adaptive low-order solver's map jumps by about its global error when the
@@ -113,6 +114,7 @@ class Shooting(AbstractOrbitMethod):
 
     name = "shooting"
     uses_chord = False  # the Jacobian costs ~ one period map: plain Newton is as cheap
+    assembled_jacobian = False  # forward mode through the flow (`residual_and_jacobian`)
 
     def __check_init__(self):
         if int(self.segments) < 1:
@@ -130,6 +132,12 @@ class Shooting(AbstractOrbitMethod):
         t = self._times(period, n_periods)
         zs = flow(vector_field, z0, args, scale, t[0], t[-1], t[:-1], self.settings)
         return zs.reshape(-1)
+
+    def residual_and_jacobian(self, vector_field, z, args, period, n_periods, scale):
+        """(R(z), dR/dz) by forward mode through the flow (one pass per unknown)."""
+        return residual_and_jacobian(
+            lambda v, _: self.residual(vector_field, v, args, period, n_periods, scale), z,
+            None)
 
     def residual(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         adj = ode_adjoint or dfx.ForwardMode()
