@@ -684,6 +684,7 @@ def _cold(src: Sources, v: Values):
             lambda n=name: integer(cmd(n)["before"]["compiles"]))
     put("cold.before_date", lambda: date10(cmd("continue")["before"]["date"]))
     put("cold.predict_before_date", lambda: date10(cmd("predict")["before"]["date"]))
+    put("cold.simulate_before_date", lambda: cmd("simulate")["before"]["date"])
     r = "benchmarks/results/resonance.json"
 
     def rset(name):
