@@ -228,7 +228,7 @@ def variants(args, problem, emit, timed, over, np):
     """The kernel alone (no sweep around it) for each variant, first call and run."""
     import jax
 
-    from bsfs_jax.model import vector_field_components
+    from bsfs_jax.model import kernel_vector_field
     from bsfs_jax.solvers import integrate_lanes
 
     for name, block, warps in VARIANTS:
@@ -239,10 +239,11 @@ def variants(args, problem, emit, timed, over, np):
 
             def run(v, block=block, warps=warps):
                 a, per = jax.vmap(lambda x: problem.setup(problem.data, x))(v)
-                return integrate_lanes(vector_field_components, jax.numpy.zeros((n, 6)), a,
+                return integrate_lanes(kernel_vector_field, jax.numpy.zeros((n, 6)), a,
                                        200 * per, per, n_samples=64, samples_per_period=1,
                                        rtol=1e-8, atol=1e-12, max_steps=4_000_000,
-                                       block=block, num_warps=warps)
+                                       block=block, num_warps=warps,
+                                       fast=bool(args.kernel_fast))
 
             fn = jax.jit(run)
             _, first = timed(lambda: jax.block_until_ready(fn(freqs)))

@@ -31,6 +31,9 @@ def test_joint_forces_zero_at_rest(system):
     f = bsfs.joint_forces(system, jnp.zeros(3))
     assert np.all(np.asarray(f) == 0.0)
     np.testing.assert_allclose(bsfs.equilibrium(system), 0.0, atol=1e-15)
+    # The unforced equilibrium skips Newton (x = 0 by the symmetry above); a traced zero
+    # force takes the Newton path, which must return the same point.
+    np.testing.assert_array_equal(np.asarray(_equilibrium(system, jnp.array(0.0))), 0.0)
 
 
 def test_joint_forces_odd(system):

@@ -194,7 +194,7 @@ def run_simulate(args) -> int:
     fig = response_figure(traj, title=f"BSFS response: {args.frequency:g} Hz, {args.force:g} N, "
                           f"{float(params.thermal.speed_rpm):g} r/min, thermal "
                           f"{'on' if params.thermal.enabled else 'off'}")
-    ui.save_figure(fig, folder / "response.png", tight=False)  # laid out by tight_layout
+    ui.save_figure(fig, folder / "response.png", tight=False)  # margins set by the figure
     summary["steady_state"] = _steady_state(args, params, traj, amp, x, v)
     summary["runtime_s"] = time.perf_counter() - started
     ui.write_json(folder / "summary.json", summary)

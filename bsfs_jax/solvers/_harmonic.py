@@ -216,10 +216,13 @@ class HarmonicBalance(AbstractOrbitMethod):
         ts = t_end * jnp.arange(n) / n
         zs = self._to_time(z, d, n)
         g = jax.vmap(lambda t, zz: Scaled(vector_field)(t, zz, (args, scale)))(ts, zs)
-        gc = self._to_coeffs(g) / omega
+        return self._balance(z, g, omega, d)
+
+    def _balance(self, z, g, omega, d):
+        """The residual from the field's samples g (N, d) on the AFT grid."""
         c0, a, b = self._unpack(z, d)
         k = jnp.arange(1, self.harmonics + 1)[:, None]
-        g0, ga, gb = self._unpack(gc, d)
+        g0, ga, gb = self._unpack(self._to_coeffs(g) / omega, d)
         return jnp.concatenate([-g0, (k * b - ga).reshape(-1), (-k * a - gb).reshape(-1)])
 
     def residual_and_jacobian(self, vector_field, z, args, period, n_periods, scale):
@@ -248,11 +251,7 @@ class HarmonicBalance(AbstractOrbitMethod):
             return f(zz), jax.jacfwd(f)(zz)
 
         g, a = jax.vmap(value_and_a)(ts, zs)
-        gc = self._to_coeffs(g) / omega
-        c0, ca, cb = self._unpack(z, d)
-        k = jnp.arange(1, h + 1)[:, None]
-        g0, ga, gb = self._unpack(gc, d)
-        r = jnp.concatenate([-g0, (k * cb - ga).reshape(-1), (-k * ca - gb).reshape(-1)])
+        r = self._balance(z, g, omega, d)
         # Ahat_m = alpha_m + i beta_m, m = 0..N-1 (negative m wrap around), (N, d, d).
         ahat = jnp.fft.fft(a, axis=0) / n
         table = jnp.concatenate([ahat.real, ahat.imag])  # alpha at m, beta at N + m

@@ -22,7 +22,7 @@ a tuple of k such arrays), so a field written elementwise on scalars (the ball s
 `bsfs_jax.model.vector_field_components`) runs unchanged. The sweep's kernel engine runs
 it with `fast=True` (`model.kernel_vector_field`: no float64 division or square root) and
 the kernel's own `fast` controller arithmetic; on an H100 that took a step of the slowest
-lane from 13.0 to about 7.6 us.
+lane from 13.0 to 4.3 us (benchmarks/results/gpu_b1.md).
 
 On a CPU (or wherever Triton is not available) the kernel runs in Pallas' interpret mode:
 slow, for tests; there the fused loop stays the default.
