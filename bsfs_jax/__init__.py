@@ -6,8 +6,9 @@ are SI inside the package; the library never changes `jax.config` (enable 64-bit
 at your entry point: `jax.config.update("jax_enable_x64", True)`).
 """
 
-import importlib.metadata
 import os
+from importlib import import_module
+from typing import TYPE_CHECKING
 
 # Equinox's runtime checks (diffrax's `saveat.ts` order, lineax, optimistix) default to a
 # host callback that raises; a program with a host callback is never written to jax's
@@ -17,33 +18,83 @@ import os
 # keep equinox's default. Read by equinox at its import: this must come first.
 os.environ.setdefault("EQX_ON_ERROR", "nan")
 
-from ._programs import cached_jit as cached_jit
-from .machine import Modes as Modes
-from .machine import Trajectory as Trajectory
-from .machine import equilibrium as equilibrium
-from .machine import linear_frf as linear_frf
-from .machine import modes as modes
-from .machine import simulate as simulate
-from .model import HarmonicForcing as HarmonicForcing
-from .model import Sinusoid as Sinusoid
-from .model import System as System
-from .model import build_system as build_system
-from .model import joint_forces as joint_forces
-from .model import mechanical_energy as mechanical_energy
-from .model import vector_field as vector_field
-from .params import BallScrewParams as BallScrewParams
-from .params import ParameterError as ParameterError
-from .params import list_presets as list_presets
-from .params import load_params as load_params
-from .params import params_to_toml as params_to_toml
-from .params import preset as preset
-from .params import save_params as save_params
-from .solvers import RESULTS as RESULTS
-from .solvers import SolverError as SolverError
-from .solvers import SolverSettings as SolverSettings
-from .solvers import integrate as integrate
+if TYPE_CHECKING:
+    from ._programs import cached_jit as cached_jit
+    from .machine import Modes as Modes
+    from .machine import Trajectory as Trajectory
+    from .machine import equilibrium as equilibrium
+    from .machine import linear_frf as linear_frf
+    from .machine import modes as modes
+    from .machine import simulate as simulate
+    from .model import HarmonicForcing as HarmonicForcing
+    from .model import Sinusoid as Sinusoid
+    from .model import System as System
+    from .model import build_system as build_system
+    from .model import joint_forces as joint_forces
+    from .model import mechanical_energy as mechanical_energy
+    from .model import vector_field as vector_field
+    from .params import BallScrewParams as BallScrewParams
+    from .params import ParameterError as ParameterError
+    from .params import list_presets as list_presets
+    from .params import load_params as load_params
+    from .params import params_to_toml as params_to_toml
+    from .params import preset as preset
+    from .params import save_params as save_params
+    from .solvers import RESULTS as RESULTS
+    from .solvers import SolverError as SolverError
+    from .solvers import SolverSettings as SolverSettings
+    from .solvers import integrate as integrate
 
-try:
-    __version__ = importlib.metadata.version("bsfs")
-except importlib.metadata.PackageNotFoundError:  # running from a source tree
-    __version__ = "0.0.0+local"
+_LAZY = {
+    "cached_jit": "._programs",
+    "Modes": ".machine",
+    "Trajectory": ".machine",
+    "equilibrium": ".machine",
+    "linear_frf": ".machine",
+    "modes": ".machine",
+    "simulate": ".machine",
+    "HarmonicForcing": ".model",
+    "Sinusoid": ".model",
+    "System": ".model",
+    "build_system": ".model",
+    "joint_forces": ".model",
+    "mechanical_energy": ".model",
+    "vector_field": ".model",
+    "BallScrewParams": ".params",
+    "ParameterError": ".params",
+    "list_presets": ".params",
+    "load_params": ".params",
+    "params_to_toml": ".params",
+    "preset": ".params",
+    "save_params": ".params",
+    "RESULTS": ".solvers",
+    "SolverError": ".solvers",
+    "SolverSettings": ".solvers",
+    "integrate": ".solvers",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    # Public names load their module on first use (PEP 562): a command that needs only
+    # the parameters and the modes does not import the solvers (optimistix, diffrax).
+    if name == "__version__":
+        from importlib import metadata
+
+        try:
+            value = metadata.version("bsfs")
+        except metadata.PackageNotFoundError:  # running from a source tree
+            value = "0.0.0+local"
+        globals()[name] = value
+        return value
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted({*globals(), *_LAZY})

@@ -261,3 +261,21 @@ def test_readme_lists_every_preset_and_command():
     assert [p for p in list_presets() if f"`{p}`" not in readme] == []
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     assert [c for c in sub.choices if f"`bsfs {c}" not in readme] == []
+
+
+def test_modes_and_argument_errors_do_not_load_the_solvers(tmp_path):
+    """`bsfs modes` and a mistyped command answer without importing the solvers (diffrax,
+    optimistix): the packages load their public names on first use."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom bsfs_jax.cli import main\n"
+            "codes = [main(['modes', '--json']), main(['modes', '--speed', '-5'])]\n"
+            "heavy = sorted(m for m in ('diffrax', 'optimistix', 'lineax', 'bsfs_jax.solvers') "
+            "if m in sys.modules)\n"
+            "print('CODES', codes, 'HEAVY', heavy)\n")
+    env = {**__import__("os").environ, "BSFS_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=300)
+    line = [x for x in out.stdout.splitlines() if x.startswith("CODES")]
+    assert line == ["CODES [0, 1] HEAVY []"], out.stdout[-2000:] + out.stderr[-2000:]

@@ -91,11 +91,17 @@ def main(argv=None) -> int:
     setup_jax()
     _one_line_warnings(args.command)
     from ..params import ParameterError, one_line
-    from ..solvers import SolverError
+
+    def user_errors():
+        # A SolverError can only come from a loaded `solvers`: a command that never loads
+        # it (`bsfs modes`, `bsfs params`) does not import it for this clause.
+        solvers = sys.modules.get("bsfs_jax.solvers")
+        return (CLIError, ParameterError, FileExistsError, FileNotFoundError,
+                *((solvers.SolverError,) if solvers is not None else ()))
 
     try:
         return int(args.func(args) or 0)
-    except (CLIError, ParameterError, SolverError, FileExistsError, FileNotFoundError) as exc:
+    except user_errors() as exc:
         print(f"bsfs {args.command}: error: {one_line(exc, 2000)}", file=sys.stderr)
         return 1
     except BrokenPipeError:  # e.g. `bsfs params | head`

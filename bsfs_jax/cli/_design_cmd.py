@@ -8,7 +8,8 @@ from . import _common as ui
 
 
 def register(sub) -> None:
-    from ..design import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS, METRICS
+    from ..design import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS
+    from ..design import METRIC_INFO as METRICS
 
     metric_help = "; ".join(f"{m.name} [{m.unit}, {m.direction}imise]" for m in
                             METRICS.values())

@@ -11,46 +11,117 @@ by their TOML vocabulary ("nut.balls", "thermal.speed_rpm", ...), in file units.
     print(s.table_markdown())
 """
 
-from ._crosscheck import PAPER_TRENDS as PAPER_TRENDS
-from ._crosscheck import crosscheck_markdown as crosscheck_markdown
-from ._crosscheck import paper_crosscheck as paper_crosscheck
-from ._gradcheck import FD_TOLERANCE as FD_TOLERANCE
-from ._gradcheck import check_gradient as check_gradient
-from ._gradcheck import compare_gradients as compare_gradients
-from ._gradcheck import gradient_not_checked as gradient_not_checked
-from ._gradcheck import largest_entries as largest_entries
-from ._gradcheck import probe_gradient as probe_gradient
-from ._metrics import METRICS as METRICS
-from ._metrics import Metric as Metric
-from ._metrics import OperatingPoint as OperatingPoint
-from ._metrics import frc_peak_location as frc_peak_location
-from ._metrics import frf_peak_frequency as frf_peak_frequency
-from ._metrics import get_metric as get_metric
-from ._optimize import OptimizationResult as OptimizationResult
-from ._optimize import OptimizationStart as OptimizationStart
-from ._optimize import default_bounds as default_bounds
-from ._optimize import optimization_start as optimization_start
-from ._optimize import optimize as optimize
-from ._optimize import verify_by_simulation as verify_by_simulation
-from ._orbit import OPENS_FRACTION as OPENS_FRACTION
-from ._orbit import OrbitSettings as OrbitSettings
-from ._orbit import PeakHint as PeakHint
-from ._orbit import fold_frequency_value as fold_frequency_value
-from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
-from ._orbit import frc_peak_value as frc_peak_value
-from ._orbit import frc_point_values as frc_point_values
-from ._orbit import locate_frc_peak as locate_frc_peak
-from ._orbit import opens_joint as opens_joint
-from ._orbit import peak_orbit_samples as peak_orbit_samples
-from ._orbit import periodic_orbit as periodic_orbit
-from ._orbit import point_hint as point_hint
-from ._sensitivity import DEFAULT_FORCE_N as DEFAULT_FORCE_N
-from ._sensitivity import DEFAULT_FREQUENCY_HZ as DEFAULT_FREQUENCY_HZ
-from ._sensitivity import DESIGN_PARAMETERS as DESIGN_PARAMETERS
-from ._sensitivity import SensitivityResult as SensitivityResult
-from ._sensitivity import check_design_inputs as check_design_inputs
-from ._sensitivity import compiled as compiled
-from ._sensitivity import evaluate as evaluate
-from ._sensitivity import finite_difference_sensitivities as finite_difference_sensitivities
-from ._sensitivity import sensitivities as sensitivities
-from ._sensitivity import with_values as with_values
+from importlib import import_module
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ._catalogue import DEFAULT_FORCE_N as DEFAULT_FORCE_N
+    from ._catalogue import DEFAULT_FREQUENCY_HZ as DEFAULT_FREQUENCY_HZ
+    from ._catalogue import DESIGN_PARAMETERS as DESIGN_PARAMETERS
+    from ._catalogue import METRIC_INFO as METRIC_INFO
+    from ._catalogue import MetricInfo as MetricInfo
+    from ._crosscheck import PAPER_TRENDS as PAPER_TRENDS
+    from ._crosscheck import crosscheck_markdown as crosscheck_markdown
+    from ._crosscheck import paper_crosscheck as paper_crosscheck
+    from ._gradcheck import FD_TOLERANCE as FD_TOLERANCE
+    from ._gradcheck import check_gradient as check_gradient
+    from ._gradcheck import compare_gradients as compare_gradients
+    from ._gradcheck import gradient_not_checked as gradient_not_checked
+    from ._gradcheck import largest_entries as largest_entries
+    from ._gradcheck import probe_gradient as probe_gradient
+    from ._metrics import METRICS as METRICS
+    from ._metrics import Metric as Metric
+    from ._metrics import OperatingPoint as OperatingPoint
+    from ._metrics import frc_peak_location as frc_peak_location
+    from ._metrics import frf_peak_frequency as frf_peak_frequency
+    from ._metrics import get_metric as get_metric
+    from ._optimize import OptimizationResult as OptimizationResult
+    from ._optimize import OptimizationStart as OptimizationStart
+    from ._optimize import default_bounds as default_bounds
+    from ._optimize import optimization_start as optimization_start
+    from ._optimize import optimize as optimize
+    from ._optimize import verify_by_simulation as verify_by_simulation
+    from ._orbit import OPENS_FRACTION as OPENS_FRACTION
+    from ._orbit import OrbitSettings as OrbitSettings
+    from ._orbit import PeakHint as PeakHint
+    from ._orbit import fold_frequency_value as fold_frequency_value
+    from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
+    from ._orbit import frc_peak_value as frc_peak_value
+    from ._orbit import frc_point_values as frc_point_values
+    from ._orbit import locate_frc_peak as locate_frc_peak
+    from ._orbit import opens_joint as opens_joint
+    from ._orbit import peak_orbit_samples as peak_orbit_samples
+    from ._orbit import periodic_orbit as periodic_orbit
+    from ._orbit import point_hint as point_hint
+    from ._sensitivity import SensitivityResult as SensitivityResult
+    from ._sensitivity import check_design_inputs as check_design_inputs
+    from ._sensitivity import compiled as compiled
+    from ._sensitivity import evaluate as evaluate
+    from ._sensitivity import finite_difference_sensitivities as finite_difference_sensitivities
+    from ._sensitivity import sensitivities as sensitivities
+    from ._sensitivity import with_values as with_values
+
+_LAZY = {
+    "PAPER_TRENDS": "._crosscheck",
+    "crosscheck_markdown": "._crosscheck",
+    "paper_crosscheck": "._crosscheck",
+    "FD_TOLERANCE": "._gradcheck",
+    "check_gradient": "._gradcheck",
+    "compare_gradients": "._gradcheck",
+    "gradient_not_checked": "._gradcheck",
+    "largest_entries": "._gradcheck",
+    "probe_gradient": "._gradcheck",
+    "METRICS": "._metrics",
+    "Metric": "._metrics",
+    "OperatingPoint": "._metrics",
+    "frc_peak_location": "._metrics",
+    "frf_peak_frequency": "._metrics",
+    "get_metric": "._metrics",
+    "OptimizationResult": "._optimize",
+    "OptimizationStart": "._optimize",
+    "default_bounds": "._optimize",
+    "optimization_start": "._optimize",
+    "optimize": "._optimize",
+    "verify_by_simulation": "._optimize",
+    "OPENS_FRACTION": "._orbit",
+    "OrbitSettings": "._orbit",
+    "PeakHint": "._orbit",
+    "fold_frequency_value": "._orbit",
+    "frc_peak_frequency_value": "._orbit",
+    "frc_peak_value": "._orbit",
+    "frc_point_values": "._orbit",
+    "locate_frc_peak": "._orbit",
+    "opens_joint": "._orbit",
+    "peak_orbit_samples": "._orbit",
+    "periodic_orbit": "._orbit",
+    "point_hint": "._orbit",
+    "DEFAULT_FORCE_N": "._catalogue",
+    "DEFAULT_FREQUENCY_HZ": "._catalogue",
+    "DESIGN_PARAMETERS": "._catalogue",
+    "METRIC_INFO": "._catalogue",
+    "MetricInfo": "._catalogue",
+    "SensitivityResult": "._sensitivity",
+    "check_design_inputs": "._sensitivity",
+    "compiled": "._sensitivity",
+    "evaluate": "._sensitivity",
+    "finite_difference_sensitivities": "._sensitivity",
+    "sensitivities": "._sensitivity",
+    "with_values": "._sensitivity",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    # Public names load their module on first use (PEP 562): the command line reads the
+    # metric names from `_catalogue` without loading the solvers.
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted({*globals(), *_LAZY})

@@ -24,6 +24,7 @@ from .._numerics import float_array
 from ..machine import linear_frf, modes
 from ..model import Sinusoid, build_system, vector_field
 from ..solvers import SHOOTING_SETTINGS, ImplicitReverse, variational_monodromy
+from ._catalogue import METRIC_INFO, MetricInfo
 from ._orbit import OrbitSettings, frc_peak_value, locate_frc_peak, operating_orbit
 
 
@@ -39,26 +40,14 @@ class OperatingPoint(eqx.Module):
 
 
 @dataclasses.dataclass(frozen=True)
-class Metric:
-    """A named response metric.
+class Metric(MetricInfo):
+    """A named response metric: its description (`MetricInfo`) and its functions.
 
-    - `name`: CLI / API name; `label`: plot label; `unit`: the reporting unit, and
-      `scale`: SI value * scale = value in `unit`.
-    - `direction`: "min" or "max", the sensible design direction (used by `optimize`).
-    - `needs_orbit`: True when it solves periodic orbits (needs frequency and force).
     - `fn(params, op, settings, hint=None)`: the SI value (traceable, differentiable);
     - `locate(params, op, settings) -> hint`: host-side search that `fn` needs (the FRC
       peak by continuation), None for metrics that need none.
     """
 
-    name: str
-    label: str
-    unit: str
-    scale: float
-    direction: str
-    needs_orbit: bool
-    uses_operating_point: bool
-    description: str
     fn: Callable = dataclasses.field(repr=False, compare=False)
     locate: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
 
@@ -169,30 +158,20 @@ def frc_peak(params, op: OperatingPoint, settings: OrbitSettings = OrbitSettings
     return frc_peak_value(params, op.force_n, hint)
 
 
+# The functions of each metric in `METRIC_INFO` (name: (fn, locate)).
+_FUNCTIONS = {
+    "frc_peak": (frc_peak, _locate_frc),
+    "amplitude": (orbit_amplitude, None),
+    "natural_frequency": (natural_frequency, None),
+    "static_stiffness": (static_stiffness, None),
+    "floquet": (floquet_modulus, None),
+    "thermal_error": (thermal_error, None),
+    "frf_peak": (frf_peak, None),
+}
 METRICS: dict[str, Metric] = {
-    m.name: m
-    for m in (
-        Metric("frc_peak", "FRC peak amplitude", "um", 1e6, "min", True, True,
-               "peak nut amplitude of the frequency-response curve near the first resonance "
-               "at the given force: the maximum along the continued branch of periodic "
-               "orbits (harmonic balance), folded or not", frc_peak, _locate_frc),
-        Metric("amplitude", "amplitude at the operating point", "um", 1e6, "min", True, True,
-               "steady nut amplitude (half peak-to-peak of x_n) of the period-1 orbit at the "
-               "given frequency and force", orbit_amplitude),
-        Metric("natural_frequency", "first natural frequency", "Hz", 1.0, "max", False, False,
-               "first undamped natural frequency about the static equilibrium",
-               natural_frequency),
-        Metric("static_stiffness", "static axial stiffness", "N/um", 1e-6, "max", False, False,
-               "axial stiffness of the bearing-screw-nut chain at the nut", static_stiffness),
-        Metric("floquet", "largest Floquet multiplier modulus", "-", 1.0, "min", True, True,
-               "stability margin of the period-1 orbit at the given frequency and force "
-               "(< 1 stable; smaller is more stable)", floquet_modulus),
-        Metric("thermal_error", "thermal positioning error", "um", 1e6, "min", False, False,
-               "screw thermal elongation to the nut at the steady temperature of the "
-               "given speed (Eq. 30)", thermal_error),
-        Metric("frf_peak", "linear FRF peak compliance", "um/N", 1e6, "min", False, False,
-               "peak of the linearised nut receptance near the first mode", frf_peak),
-    )
+    name: Metric(**dataclasses.asdict(info), fn=_FUNCTIONS[name][0],
+                 locate=_FUNCTIONS[name][1])
+    for name, info in METRIC_INFO.items()
 }
 
 

@@ -18,32 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..params import BallScrewParams, lookup_key
+from ._catalogue import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS
 from ._metrics import Metric, OperatingPoint, get_metric
 from ._orbit import OrbitSettings
-
-#: Default design parameters (TOML vocabulary): geometry, counts, preloads, the speed
-#: (through the thermal chain), l_0, masses and damping.
-DESIGN_PARAMETERS: tuple[str, ...] = (
-    "nut.balls",
-    "bearing.balls",
-    "nut.ball_diameter_mm",
-    "bearing.ball_diameter_mm",
-    "nut.contact_angle_deg",
-    "bearing.contact_angle_deg",
-    "nut.preload_n",
-    "bearing.preload_n",
-    "thermal.speed_rpm",
-    "screw.length_to_nut_mm",
-    "masses.bearing_kg",
-    "masses.screw_kg",
-    "masses.nut_kg",
-    "damping.bearing_n_s_per_m",
-    "damping.screw_n_s_per_m",
-    "damping.nut_n_s_per_m",
-)
-
-DEFAULT_FREQUENCY_HZ = 120.0  # the paper's exciter tests: 100 N at 100/120/150 Hz
-DEFAULT_FORCE_N = 100.0
 
 
 def check_parameter_names(names) -> tuple[str, ...]:

@@ -12,24 +12,69 @@ optimistix.
   continuation, orbit metrics and sweeps; `BSFS_SCALE`.
 """
 
-from ._equilibrium import JOINTS as JOINTS
-from ._equilibrium import Modes as Modes
-from ._equilibrium import equilibrium as equilibrium
-from ._equilibrium import joint_windows as joint_windows
-from ._equilibrium import linear_frf as linear_frf
-from ._equilibrium import linear_liftoff_force as linear_liftoff_force
-from ._equilibrium import linearise as linearise
-from ._equilibrium import modes as modes
-from ._equilibrium import tangent_matrices as tangent_matrices
-from ._families import BSFS_SCALE as BSFS_SCALE
-from ._families import FORCE as FORCE
-from ._families import FREQUENCY as FREQUENCY
-from ._families import BSFSFamily as BSFSFamily
-from ._families import bsfs_family as bsfs_family
-from ._families import bsfs_parameter_family as bsfs_parameter_family
-from ._families import parameter_unit as parameter_unit
-from ._simulate import Horizon as Horizon
-from ._simulate import Trajectory as Trajectory
-from ._simulate import as_system as as_system
-from ._simulate import simulate as simulate
-from ._simulate import simulate_core as simulate_core
+from importlib import import_module
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ._equilibrium import JOINTS as JOINTS
+    from ._equilibrium import Modes as Modes
+    from ._equilibrium import equilibrium as equilibrium
+    from ._equilibrium import joint_windows as joint_windows
+    from ._equilibrium import linear_frf as linear_frf
+    from ._equilibrium import linear_liftoff_force as linear_liftoff_force
+    from ._equilibrium import linearise as linearise
+    from ._equilibrium import modes as modes
+    from ._equilibrium import tangent_matrices as tangent_matrices
+    from ._families import BSFS_SCALE as BSFS_SCALE
+    from ._families import FORCE as FORCE
+    from ._families import FREQUENCY as FREQUENCY
+    from ._families import BSFSFamily as BSFSFamily
+    from ._families import bsfs_family as bsfs_family
+    from ._families import bsfs_parameter_family as bsfs_parameter_family
+    from ._families import parameter_unit as parameter_unit
+    from ._simulate import Horizon as Horizon
+    from ._simulate import Trajectory as Trajectory
+    from ._simulate import simulate as simulate
+    from ._simulate import simulate_core as simulate_core
+    from ._system_arg import as_system as as_system
+
+_LAZY = {
+    "JOINTS": "._equilibrium",
+    "Modes": "._equilibrium",
+    "equilibrium": "._equilibrium",
+    "joint_windows": "._equilibrium",
+    "linear_frf": "._equilibrium",
+    "linear_liftoff_force": "._equilibrium",
+    "linearise": "._equilibrium",
+    "modes": "._equilibrium",
+    "tangent_matrices": "._equilibrium",
+    "BSFS_SCALE": "._families",
+    "FORCE": "._families",
+    "FREQUENCY": "._families",
+    "BSFSFamily": "._families",
+    "bsfs_family": "._families",
+    "bsfs_parameter_family": "._families",
+    "parameter_unit": "._families",
+    "Horizon": "._simulate",
+    "Trajectory": "._simulate",
+    "as_system": "._system_arg",
+    "simulate": "._simulate",
+    "simulate_core": "._simulate",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    # Public names load their module on first use (PEP 562): a command that needs only
+    # the parameters and the modes does not import the solvers (optimistix, diffrax).
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted({*globals(), *_LAZY})

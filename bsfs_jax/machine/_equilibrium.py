@@ -3,11 +3,10 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
+from .._numerics import cofactors_3x3
 from ..model import restoring_forces
-from ..solvers import RESULTS, SolverError, is_concrete, result_message
-from ._simulate import as_system
+from ._system_arg import as_system
 
 _X_SCALE = 1e-6  # solve in micrometres: well scaled for Newton
 _F_SCALE = 1e3  # and kilonewtons
@@ -47,6 +46,8 @@ def equilibrium(model, static_force_n=0.0, *, throw: bool = True):
         # derivatives; skipping it spares every caller that asks for the unforced modes the
         # Newton loop's compilation (most of `bsfs modes` and `bsfs simulate`'s report).
         return jnp.zeros(3)
+    import optimistix as optx  # here: `bsfs modes` and the unforced callers never load it
+
     tol = _tolerance()
     # The system travels in `args`, not in a closure: optimistix compiles its solve once
     # per function, and a new closure per call compiled it again on every eager call (24
@@ -61,6 +62,8 @@ def equilibrium(model, static_force_n=0.0, *, throw: bool = True):
 
 def _check(sol, static_force_n):
     """Raise `SolverError` for a concrete, failed Newton solve of `equilibrium`."""
+    from ..solvers import RESULTS, SolverError, is_concrete, result_message
+
     if not is_concrete((sol.result, sol.value)):
         return
     result = RESULTS.promote(sol.result)
@@ -115,8 +118,10 @@ class Modes(eqx.Module):
 
     @property
     def static_stiffness(self):
-        """Axial stiffness at the nut, P / x_n [N/m] (the drive's static stiffness)."""
-        return 1.0 / jnp.linalg.inv(self.stiffness)[2, 2]
+        """Axial stiffness at the nut, P / x_n [N/m] (the drive's static stiffness):
+        1 / (K^-1)_22 = det K / C_22, with C the cofactors (closed form, no LU)."""
+        c, det = cofactors_3x3(self.stiffness)
+        return det / c[2, 2]
 
 
 def tangent_matrices(model, x=None, v=None):

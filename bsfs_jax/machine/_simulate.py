@@ -8,9 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._numerics import half_range
-from ..model import Sinusoid, System, accelerations, build_system, joint_forces, vector_field
+from ..model import Sinusoid, accelerations, joint_forces, vector_field
 from ..params import BallScrewParams, validate
 from ..solvers import RESULTS, SolverSettings, check_result, integrate
+from ._system_arg import as_system
 
 
 class Trajectory(eqx.Module):
@@ -77,15 +78,6 @@ class Horizon:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if int(self.transient_periods) < 0:
             raise ValueError(f"transient_periods must be >= 0, got {self.transient_periods}")
-
-
-def as_system(model) -> System:
-    """Accept `BallScrewParams` or an already-built `System`."""
-    if isinstance(model, System):
-        return model
-    if isinstance(model, BallScrewParams):
-        return build_system(model)
-    raise TypeError(f"expected BallScrewParams or System, got {type(model).__name__}")
 
 
 def simulate_core(model, forcing, y0=None, horizon: Horizon = Horizon(),

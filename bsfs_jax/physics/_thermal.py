@@ -15,6 +15,7 @@ solved exactly through the eigenvectors of the symmetric pencil (G, C).
 
 import jax.numpy as jnp
 
+from .._numerics import solve_3x3
 from ._safe import pos_pow
 
 STEEL_HEAT_CAPACITY_J_PER_KG_K = 460.0  # physics.md section 4
@@ -90,8 +91,9 @@ def conductance_matrix(g_bearing_screw, g_nut_screw, g_bearing_ambient, g_screw_
 
 
 def steady_temperature_rise(conductance, heat):
-    """Steady rises T - T0 [K] of (bearing, screw, nut) for heat inputs [W]."""
-    return jnp.linalg.solve(conductance, heat)
+    """Steady rises T - T0 [K] of (bearing, screw, nut) for heat inputs [W] (the 3 x 3
+    network solved in closed form)."""
+    return solve_3x3(conductance, heat)
 
 
 def transient_temperature_rise(times, conductance, capacity, heat):
