@@ -403,8 +403,8 @@ def _tripled_jvp(primals, tangents):
 @pytest.fixture
 def wrong_metric(monkeypatch):
     """static_stiffness with a deliberately wrong (tripled) derivative, registered as a
-    metric so that the CLI offers it."""
-    from bsfs_jax.design import Metric
+    metric (its description, which the CLI offers, and its functions)."""
+    from bsfs_jax.design import METRIC_INFO, Metric
     from bsfs_jax.design._metrics import static_stiffness
 
     def wrong(params, op=None, settings=None, hint=None):
@@ -413,6 +413,7 @@ def wrong_metric(monkeypatch):
     metric = Metric("wrong_stiffness", "stiffness, wrong derivative", "N/um", 1e-6, "max",
                     False, False, "static stiffness with a tripled derivative", wrong)
     monkeypatch.setitem(METRICS, metric.name, metric)
+    monkeypatch.setitem(METRIC_INFO, metric.name, metric)
     return metric.name
 
 
