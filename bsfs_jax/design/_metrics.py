@@ -19,13 +19,20 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._numerics import float_array
 from ..machine import linear_frf, modes
 from ..model import Sinusoid, build_system, vector_field
 from ..solvers import SHOOTING_SETTINGS, ImplicitReverse, variational_monodromy
 from ._catalogue import METRIC_INFO, MetricInfo
-from ._orbit import OrbitSettings, frc_peak_value, locate_frc_peak, operating_orbit
+from ._orbit import (
+    OrbitSettings,
+    frc_peak_value,
+    locate_frc_peak,
+    locate_frc_peak_near,
+    operating_orbit,
+)
 
 
 class OperatingPoint(eqx.Module):
@@ -45,11 +52,15 @@ class Metric(MetricInfo):
 
     - `fn(params, op, settings, hint=None)`: the SI value (traceable, differentiable);
     - `locate(params, op, settings) -> hint`: host-side search that `fn` needs (the FRC
-      peak by continuation), None for metrics that need none.
+      peak by continuation), None for metrics that need none;
+    - `locate_near(params, op, settings, near=None) -> (hint, near)`: the same search,
+      with what it found (`near`) to start the next one from, for nearby parameters
+      (finite differences); None where `locate` has nothing to reuse.
     """
 
     fn: Callable = dataclasses.field(repr=False, compare=False)
     locate: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
+    locate_near: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
 
 
 # -- static metrics ---------------------------------------------------------------------
@@ -144,8 +155,34 @@ def frc_peak_location(params, op: OperatingPoint, settings: OrbitSettings = Orbi
     return float(hint.frequency_hz), float(branch.peak.amplitude)
 
 
+# The last whole-band FRC search, by its exact inputs: `sensitivities` and the
+# finite-difference probe of its gradient that follows (`bsfs sensitivity`) search the
+# same drive; the second reads the first's result instead of continuing again.
+_LAST_SEARCH: dict = {}
+
+
+def _search_key(params, force_n, settings):
+    leaves, treedef = jax.tree_util.tree_flatten(params)
+    return (str(treedef), tuple(np.asarray(x).tobytes() for x in leaves),
+            float(force_n), repr(settings))
+
+
 def _locate_frc(params, op, settings):
-    return locate_frc_peak(params, op.force_n, settings)[0]
+    return _locate_frc_near(params, op, settings)[0]
+
+
+def _locate_frc_near(params, op, settings, near=None):
+    """(hint, branch): the FRC peak over the whole band (`near` None), or on the stretch
+    of the branch `near` around its peak (`_orbit.locate_frc_peak_near`)."""
+    if near is not None:
+        return locate_frc_peak_near(params, op.force_n, settings, near)
+    key = _search_key(params, op.force_n, settings)
+    found = _LAST_SEARCH.get(key)
+    if found is None:
+        found = locate_frc_peak(params, op.force_n, settings)
+        _LAST_SEARCH.clear()
+        _LAST_SEARCH[key] = found
+    return found
 
 
 def frc_peak(params, op: OperatingPoint, settings: OrbitSettings = OrbitSettings(),
@@ -158,9 +195,9 @@ def frc_peak(params, op: OperatingPoint, settings: OrbitSettings = OrbitSettings
     return frc_peak_value(params, op.force_n, hint)
 
 
-# The functions of each metric in `METRIC_INFO` (name: (fn, locate)).
+# The functions of each metric in `METRIC_INFO` (name: (fn, locate[, locate_near])).
 _FUNCTIONS = {
-    "frc_peak": (frc_peak, _locate_frc),
+    "frc_peak": (frc_peak, _locate_frc, _locate_frc_near),
     "amplitude": (orbit_amplitude, None),
     "natural_frequency": (natural_frequency, None),
     "static_stiffness": (static_stiffness, None),
@@ -170,7 +207,8 @@ _FUNCTIONS = {
 }
 METRICS: dict[str, Metric] = {
     name: Metric(**dataclasses.asdict(info), fn=_FUNCTIONS[name][0],
-                 locate=_FUNCTIONS[name][1])
+                 locate=_FUNCTIONS[name][1],
+                 locate_near=(_FUNCTIONS[name] + (None,))[2])
     for name, info in METRIC_INFO.items()
 }
 

@@ -202,6 +202,47 @@ def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
     return point_hint(pk.point, branch), branch
 
 
+def locate_frc_peak_near(params, force_n, settings: OrbitSettings, near, *, back: int = 6,
+                         ahead: int = 6):
+    """(PeakHint, Branch): the FRC peak of `params`, searched by a short continuation on
+    the stretch of `near` (the FRC branch of nearby parameters, e.g. the nominal drive's)
+    around its peak, instead of over the whole band; what a finite-difference quotient of
+    the peak needs (`finite_difference_sensitivities`).
+
+    The search starts on `params`' own orbit at the frequency of `near`'s point `back`
+    points before its peak (Newton from that point's state), never before the last fold
+    ahead of the peak (there the orbit is the only one of its branch), and ends `ahead`
+    points past the peak, before the next fold. It is a search of its own: only its first
+    guess comes from `near`. Falls back to `locate_frc_peak` over the whole band when the
+    stretch holds no peak (the parameters moved it further than a few points)."""
+    pk = near.peak
+    if pk is None:
+        return locate_frc_peak(params, force_n, settings)
+    folds = [b.index for b in near.bifurcations if b.kind == "fold"]
+    i_a = max([pk.index - back, 0, *(i + 1 for i in folds if i < pk.index)])
+    i_b = min([pk.index + 1 + ahead, len(near) - 1, *(i for i in folds if i > pk.index)])
+    p_a, p_b = float(near.p[i_a]), float(near.p[i_b])
+    if i_b <= i_a or p_a == p_b:
+        return locate_frc_peak(params, force_n, settings)
+    # The settings' method (a caller that differences fixes it to `near`'s discretisation);
+    # under "auto", the one `near` ended with.
+    method = near.method if settings.frc_method == "auto" else settings.frc_orbit_method()
+    family = bsfs_family(params, force_n)
+    try:
+        branch = continue_orbits(family, near.states[i_a], p_a, p_b, method=method,
+                                 ds=settings.frc_ds, ds_max=10 * settings.frc_ds,
+                                 max_points=4 * (i_b - i_a) + 20, amplitude_index=2,
+                                 # `near`'s state scale, and a tighter corrector: a
+                                 # difference quotient needs the peak to ~1e-10
+                                 scale=near.scale, normalise=False, tol=1e-10,
+                                 p_scale=near.info["p_scale"])
+    except SolverError:
+        return locate_frc_peak(params, force_n, settings)
+    if branch.peak is None or branch.info["stop_reason"] != "left the parameter interval":
+        return locate_frc_peak(params, force_n, settings)
+    return point_hint(branch.peak.point, branch), branch
+
+
 def _on_hyperplane(params, force_n, hint: PeakHint, adjoint):
     """(v, family): the branch point's unknowns attached to (params, force_n) through the
     hyperplane system G(v; theta) = [R(v; theta), t* . (v - v*)] = 0 (module docstring).

@@ -73,18 +73,23 @@ def compiled(metric_name: str, names: tuple, settings: OrbitSettings):
     return eqx.filter_jit(value), eqx.filter_jit(jax.value_and_grad(value))
 
 
+def _search(run, metric: Metric):
+    """`run()`, a metric's host-side search, with its failure named as `locate_hint`'s."""
+    from ..solvers import SolverError
+
+    try:
+        return run()
+    except SolverError as exc:
+        raise FloatingPointError(f"metric '{metric.name}': {exc}") from None
+
+
 def locate_hint(metric: Metric, params: BallScrewParams, op, settings):
     """The host-side search a metric needs before its traced evaluation (None if none).
 
     Raises ValueError naming the metric and the cause when the search fails."""
     if metric.locate is None:
         return None
-    from ..solvers import SolverError
-
-    try:
-        return metric.locate(params, op, settings)
-    except SolverError as exc:
-        raise FloatingPointError(f"metric '{metric.name}': {exc}") from None
+    return _search(lambda: metric.locate(params, op, settings), metric)
 
 
 def operating_point(metric: Metric, frequency_hz=None, force_n=None) -> OperatingPoint:
@@ -224,7 +229,13 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     if missing:
         raise ValueError(f"cannot probe {', '.join(missing)}: not among {', '.join(names)}")
     which = list(range(len(names))) if only is None else [names.index(n) for n in only]
-    hint0 = locate_hint(metric, params, op, settings)
+    near = None
+    if metric.locate_near is not None:
+        # The perturbed searches start from the nominal one's result (the FRC peak: a
+        # short continuation around the nominal peak instead of the whole band).
+        hint0, near = _search(lambda: metric.locate_near(params, op, settings), metric)
+    else:
+        hint0 = locate_hint(metric, params, op, settings)
     if hint0 is not None and hasattr(hint0, "method"):
         # Every perturbed search uses the nominal discretisation (method and harmonic
         # count): a change of either between two evaluations would swamp the quotient.
@@ -238,8 +249,12 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
 
     def at(th, hint=None):  # a metric with a host-side search (the FRC peak) searches again
         if hint is None:
-            hint = locate_hint(metric, with_values(params, names, jnp.asarray(th)), op,
-                               settings)
+            moved = with_values(params, names, jnp.asarray(th))
+            if near is not None:
+                hint = _search(lambda: metric.locate_near(moved, op, settings, near),
+                               metric)[0]
+            else:
+                hint = locate_hint(metric, moved, op, settings)
         return float(value_fn(jnp.asarray(th), params, op, hint))
 
     value = at(theta, hint0)  # the nominal search is the one already done

@@ -114,11 +114,12 @@ def prepare_outside(family):
 
 
 @functools.lru_cache(maxsize=64)
-def _compiled(static_family, vector_field, method, n_periods, tol, max_iter, amplitude_index,
+def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitude_index,
               use_chord):
     """The corrector jitted over arrays only (the static parts closed over), cached per
-    static structure: low dispatch overhead and no retrace across continuation runs."""
-    def fn(dynamic_family, scale, p_scale, u_pred, tangent, lu, pivots):
+    static structure: low dispatch overhead and no retrace across continuation runs (the
+    tolerance is traced too: a tighter search reuses the program)."""
+    def fn(dynamic_family, scale, p_scale, tol, u_pred, tangent, lu, pivots):
         family = eqx.combine(dynamic_family, static_family)
         return _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol,
                              max_iter, amplitude_index, u_pred, tangent,
@@ -167,9 +168,9 @@ class Kernel:
             dyn, static = eqx.partition(self.family, eqx.is_array)
             self._dyn = dyn
             self._fn = _compiled(static, self.vector_field, self.method, int(self.n_periods),
-                                 float(self.tol), int(self.max_newton),
-                                 int(self.amplitude_index), use_chord)
-        pt = self._fn(self._dyn, self.scale, np.asarray(self.p_scale, dtype=float), u_pred,
+                                 int(self.max_newton), int(self.amplitude_index), use_chord)
+        pt = self._fn(self._dyn, self.scale, np.asarray(self.p_scale, dtype=float),
+                      np.asarray(self.tol, dtype=float), u_pred,
                       np.asarray(tangent, dtype=float), lu, piv)
         return as_host(pt, self.accurate_tol, ds_used)
 
