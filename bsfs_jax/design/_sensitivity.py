@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._programs import cached_jit
 from ..params import BallScrewParams, lookup_key
 from ._catalogue import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS
 from ._metrics import Metric, OperatingPoint, get_metric
@@ -57,15 +58,36 @@ def with_values(params: BallScrewParams, names, theta) -> BallScrewParams:
     return params
 
 
+def _value(theta, params, op, hint, metric_name, names, settings):
+    return get_metric(metric_name).fn(with_values(params, names, theta), op, settings, hint)
+
+
+@cached_jit
+def _kept_value(theta, params, op, hint, metric_name, names, settings):
+    return _value(theta, params, op, hint, metric_name, names, settings)
+
+
+@cached_jit
+def _kept_value_and_grad(theta, params, op, hint, metric_name, names, settings):
+    return jax.value_and_grad(_value)(theta, params, op, hint, metric_name, names, settings)
+
+
 @functools.lru_cache(maxsize=64)
 def compiled(metric_name: str, names: tuple, settings: OrbitSettings):
     """(value_fn, value_and_grad_fn), each jitted once per (metric, names, settings).
 
     Both take (theta [file units], params, op, hint) and return the metric in SI units;
     reuse them with different arrays (no recompilation). `hint` is what `locate_hint`
-    found on the host (the located FRC peak) or None.
+    found on the host (the located FRC peak) or None. The package's own metrics keep
+    their traced programs across processes (`cached_jit`: a warm `bsfs sensitivity` does
+    not trace the FRC peak's implicit gradient again); a metric registered from outside
+    the package is traced in every process (its code is not part of the programs' key).
     """
     metric = get_metric(metric_name)
+    static = dict(metric_name=metric_name, names=tuple(names), settings=settings)
+    if getattr(metric.fn, "__module__", "").startswith("bsfs_jax."):
+        return (functools.partial(_kept_value, **static),
+                functools.partial(_kept_value_and_grad, **static))
 
     def value(theta, params, op, hint=None):
         return metric.fn(with_values(params, names, theta), op, settings, hint)
