@@ -63,12 +63,12 @@ def _value(theta, params, op, hint, metric_name, names, settings):
 
 
 @cached_jit
-def _kept_value(theta, params, op, hint, metric_name, names, settings):
+def _kept_value(theta, params, op, hint=None, *, metric_name, names, settings):
     return _value(theta, params, op, hint, metric_name, names, settings)
 
 
 @cached_jit
-def _kept_value_and_grad(theta, params, op, hint, metric_name, names, settings):
+def _kept_value_and_grad(theta, params, op, hint=None, *, metric_name, names, settings):
     return jax.value_and_grad(_value)(theta, params, op, hint, metric_name, names, settings)
 
 
