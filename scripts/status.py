@@ -685,6 +685,7 @@ def _cold(src: Sources, v: Values):
     put("cold.before_date", lambda: date10(cmd("continue")["before"]["date"]))
     put("cold.predict_before_date", lambda: date10(cmd("predict")["before"]["date"]))
     put("cold.simulate_before_date", lambda: cmd("simulate")["before"]["date"])
+    put("cold.sens_before_date", lambda: cmd("sensitivity")["before"]["date"])
     r = "benchmarks/results/resonance.json"
 
     def rset(name):
