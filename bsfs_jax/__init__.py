@@ -7,7 +7,6 @@ at your entry point: `jax.config.update("jax_enable_x64", True)`).
 """
 
 import os
-from importlib import import_module
 from typing import TYPE_CHECKING
 
 # Equinox's runtime checks (diffrax's `saveat.ts` order, lineax, optimistix) default to a
@@ -17,6 +16,8 @@ from typing import TYPE_CHECKING
 # it itself; nothing relies on those raises). Set EQX_ON_ERROR=raise before importing to
 # keep equinox's default. Read by equinox at its import: this must come first.
 os.environ.setdefault("EQX_ON_ERROR", "nan")
+
+from ._lazy import lazy_names  # noqa: E402 - after the environment variable
 
 if TYPE_CHECKING:
     from ._programs import cached_jit as cached_jit
@@ -76,25 +77,13 @@ _LAZY = {
 __all__ = list(_LAZY)
 
 
-def __getattr__(name: str):
-    # Public names load their module on first use (PEP 562): a command that needs only
-    # the parameters and the modes does not import the solvers (optimistix, diffrax).
-    if name == "__version__":
-        from importlib import metadata
 
-        try:
-            value = metadata.version("bsfs")
-        except metadata.PackageNotFoundError:  # running from a source tree
-            value = "0.0.0+local"
-        globals()[name] = value
-        return value
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module, __name__), name)
-    globals()[name] = value
-    return value
+def _version() -> str:
+    from importlib import metadata
 
+    try:
+        return metadata.version("bsfs")
+    except metadata.PackageNotFoundError:  # running from a source tree
+        return "0.0.0+local"
 
-def __dir__():
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, {"__version__": _version})

@@ -10,21 +10,23 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("bsfs_jax", "identification")
 
 # What each layer may import: ARCHITECTURE.md's table, top to bottom. "_files",
-# "_programs" and "_numerics" are bsfs_jax's own utility modules (files and programs are
-# public as bsfs_jax.files and bsfs_jax.cached_jit); "bsfs_jax" is its top-level API.
+# "_programs", "_numerics" and "_lazy" are bsfs_jax's own utility modules (files and
+# programs are public as bsfs_jax.files and bsfs_jax.cached_jit); "bsfs_jax" is its
+# top-level API.
 _UTIL = {"_files", "_numerics"}
 ALLOWED = {
     "_files": set(),
     "files": {"_files"},
     "_numerics": set(),
+    "_lazy": set(),
     "_programs": {"_files"},
     "params": {"_files", "_numerics"},
     "physics": {"_numerics"},
     "model": {"params", "physics", "_numerics"},
     "solvers": {"_programs"} | _UTIL,
-    "machine": {"params", "model", "solvers", "_programs"} | _UTIL,
+    "machine": {"params", "model", "solvers", "_programs", "_lazy"} | _UTIL,
     "analysis": {"machine", "model", "solvers", "params", "files", "_programs"} | _UTIL,
-    "design": {"machine", "model", "solvers", "params", "_programs"} | _UTIL,
+    "design": {"machine", "model", "solvers", "params", "_programs", "_lazy"} | _UTIL,
     # identification sits on bsfs_jax's public API only (no private module of it)
     "identification": {"bsfs_jax", "files", "params", "physics", "model", "solvers",
                        "machine", "analysis", "design"},
@@ -34,7 +36,7 @@ ALLOWED = {
     "cli": {"_files", "_numerics", "_programs", "bsfs_jax", "files", "params", "physics",
             "model", "solvers", "machine", "analysis", "design", "identification",
             "plotting", "reproduce"},
-    "bsfs_jax": {"_programs", "params", "physics", "model", "solvers", "machine"},
+    "bsfs_jax": {"_programs", "_lazy", "params", "physics", "model", "solvers", "machine"},
 }
 
 

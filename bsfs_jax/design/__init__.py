@@ -11,8 +11,9 @@ by their TOML vocabulary ("nut.balls", "thermal.speed_rpm", ...), in file units.
     print(s.table_markdown())
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names
 
 if TYPE_CHECKING:
     from ._catalogue import DEFAULT_FORCE_N as DEFAULT_FORCE_N
@@ -111,17 +112,4 @@ _LAZY = {
 
 __all__ = list(_LAZY)
 
-
-def __getattr__(name: str):
-    # Public names load their module on first use (PEP 562): the command line reads the
-    # metric names from `_catalogue` without loading the solvers.
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)

@@ -12,8 +12,9 @@ optimistix.
   continuation, orbit metrics and sweeps; `BSFS_SCALE`.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names
 
 if TYPE_CHECKING:
     from ._equilibrium import JOINTS as JOINTS
@@ -64,17 +65,4 @@ _LAZY = {
 
 __all__ = list(_LAZY)
 
-
-def __getattr__(name: str):
-    # Public names load their module on first use (PEP 562): a command that needs only
-    # the parameters and the modes does not import the solvers (optimistix, diffrax).
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
