@@ -8,11 +8,10 @@ from . import _common as ui
 
 
 def register(sub) -> None:
-    from ..design import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS
-    from ..design import METRIC_INFO as METRICS
+    from ..design import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS, METRIC_INFO
 
     metric_help = "; ".join(f"{m.name} [{m.unit}, {m.direction}imise]" for m in
-                            METRICS.values())
+                            METRIC_INFO.values())
     p = sub.add_parser(
         "sensitivity", help="exact sensitivities of a response metric to design parameters",
         description="Gradient of a metric with respect to design parameters by implicit "
@@ -21,8 +20,8 @@ def register(sub) -> None:
         "(gradient_check; exit status 3 where they disagree). Writes sensitivity.json, "
         "sensitivity.png (tornado plot) and sensitivity.md (table + comparison with the "
         f"paper's trends). Metrics: {metric_help}.")
-    p.add_argument("--metric", required=True, choices=list(METRICS), metavar="NAME",
-                   help=f"one of: {', '.join(METRICS)}")
+    p.add_argument("--metric", required=True, choices=list(METRIC_INFO), metavar="NAME",
+                   help=f"one of: {', '.join(METRIC_INFO)}")
     _operating_args(p, DEFAULT_FREQUENCY_HZ, DEFAULT_FORCE_N)
     p.add_argument("--vary", metavar="NAME,...",
                    help="design parameters (vocabulary names, comma-separated); default: "
@@ -48,8 +47,8 @@ def register(sub) -> None:
         "start (a disagreement refuses the run) and at the optimum (flagged, exit status 3); "
         "the start and the optimum are verified by time simulation. Writes optimize.json, "
         "optimize.md, optimize.png and optimum.toml.")
-    q.add_argument("--metric", required=True, choices=list(METRICS), metavar="NAME",
-                   help=f"one of: {', '.join(METRICS)}")
+    q.add_argument("--metric", required=True, choices=list(METRIC_INFO), metavar="NAME",
+                   help=f"one of: {', '.join(METRIC_INFO)}")
     q.add_argument("--vary", required=True, metavar="NAME,...",
                    help="design parameters to vary (vocabulary names, comma-separated)")
     q.add_argument("--bounds", metavar="NAME=LO:HI,...",

@@ -195,21 +195,20 @@ def frc_peak(params, op: OperatingPoint, settings: OrbitSettings = OrbitSettings
     return frc_peak_value(params, op.force_n, hint)
 
 
-# The functions of each metric in `METRIC_INFO` (name: (fn, locate[, locate_near])).
+# The functions of each metric in `METRIC_INFO`: (fn, locate, locate_near).
 _FUNCTIONS = {
     "frc_peak": (frc_peak, _locate_frc, _locate_frc_near),
-    "amplitude": (orbit_amplitude, None),
-    "natural_frequency": (natural_frequency, None),
-    "static_stiffness": (static_stiffness, None),
-    "floquet": (floquet_modulus, None),
-    "thermal_error": (thermal_error, None),
-    "frf_peak": (frf_peak, None),
+    "amplitude": (orbit_amplitude, None, None),
+    "natural_frequency": (natural_frequency, None, None),
+    "static_stiffness": (static_stiffness, None, None),
+    "floquet": (floquet_modulus, None, None),
+    "thermal_error": (thermal_error, None, None),
+    "frf_peak": (frf_peak, None, None),
 }
 METRICS: dict[str, Metric] = {
-    name: Metric(**dataclasses.asdict(info), fn=_FUNCTIONS[name][0],
-                 locate=_FUNCTIONS[name][1],
-                 locate_near=(_FUNCTIONS[name] + (None,))[2])
+    name: Metric(**dataclasses.asdict(info), fn=fn, locate=locate, locate_near=near)
     for name, info in METRIC_INFO.items()
+    for fn, locate, near in (_FUNCTIONS[name],)
 }
 
 

@@ -58,18 +58,18 @@ def with_values(params: BallScrewParams, names, theta) -> BallScrewParams:
     return params
 
 
-def _value(theta, params, op, hint, metric_name, names, settings):
+def _value(theta, params, op, hint=None, *, metric_name, names, settings):
     return get_metric(metric_name).fn(with_values(params, names, theta), op, settings, hint)
 
 
-@cached_jit
-def _kept_value(theta, params, op, hint=None, *, metric_name, names, settings):
-    return _value(theta, params, op, hint, metric_name, names, settings)
+def _value_and_grad(theta, params, op, hint=None, *, metric_name, names, settings):
+    return jax.value_and_grad(_value)(theta, params, op, hint, metric_name=metric_name,
+                                      names=names, settings=settings)
 
 
-@cached_jit
-def _kept_value_and_grad(theta, params, op, hint=None, *, metric_name, names, settings):
-    return jax.value_and_grad(_value)(theta, params, op, hint, metric_name, names, settings)
+# (value, value_and_grad) jitted: kept across processes (the package's own metrics) or not.
+_KEPT = (cached_jit(_value), cached_jit(_value_and_grad))
+_PLAIN = (eqx.filter_jit(_value), eqx.filter_jit(_value_and_grad))
 
 
 @functools.lru_cache(maxsize=64)
@@ -83,35 +83,32 @@ def compiled(metric_name: str, names: tuple, settings: OrbitSettings):
     not trace the FRC peak's implicit gradient again); a metric registered from outside
     the package is traced in every process (its code is not part of the programs' key).
     """
-    metric = get_metric(metric_name)
+    kept = getattr(get_metric(metric_name).fn, "__module__", "").startswith("bsfs_jax.")
     static = dict(metric_name=metric_name, names=tuple(names), settings=settings)
-    if getattr(metric.fn, "__module__", "").startswith("bsfs_jax."):
-        return (functools.partial(_kept_value, **static),
-                functools.partial(_kept_value_and_grad, **static))
-
-    def value(theta, params, op, hint=None):
-        return metric.fn(with_values(params, names, theta), op, settings, hint)
-
-    return eqx.filter_jit(value), eqx.filter_jit(jax.value_and_grad(value))
-
-
-def _search(run, metric: Metric):
-    """`run()`, a metric's host-side search, with its failure named as `locate_hint`'s."""
-    from ..solvers import SolverError
-
-    try:
-        return run()
-    except SolverError as exc:
-        raise FloatingPointError(f"metric '{metric.name}': {exc}") from None
+    return tuple(functools.partial(f, **static) for f in (_KEPT if kept else _PLAIN))
 
 
 def locate_hint(metric: Metric, params: BallScrewParams, op, settings):
     """The host-side search a metric needs before its traced evaluation (None if none).
 
-    Raises ValueError naming the metric and the cause when the search fails."""
+    Raises FloatingPointError naming the metric and the cause when the search fails."""
+    return _locate(metric, params, op, settings)[0]
+
+
+def _locate(metric: Metric, params, op, settings, near=None):
+    """(hint, near): the metric's host-side search (`locate_hint`), with what it found for
+    the next search to start from where the metric can reuse it (`Metric.locate_near`;
+    given `near`, a search that starts from it), else (hint, None)."""
     if metric.locate is None:
-        return None
-    return _search(lambda: metric.locate(params, op, settings), metric)
+        return None, None
+    from ..solvers import SolverError
+
+    try:
+        if metric.locate_near is not None:
+            return metric.locate_near(params, op, settings, near)
+        return metric.locate(params, op, settings), None
+    except SolverError as exc:
+        raise FloatingPointError(f"metric '{metric.name}': {exc}") from None
 
 
 def operating_point(metric: Metric, frequency_hz=None, force_n=None) -> OperatingPoint:
@@ -251,13 +248,9 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     if missing:
         raise ValueError(f"cannot probe {', '.join(missing)}: not among {', '.join(names)}")
     which = list(range(len(names))) if only is None else [names.index(n) for n in only]
-    near = None
-    if metric.locate_near is not None:
-        # The perturbed searches start from the nominal one's result (the FRC peak: a
-        # short continuation around the nominal peak instead of the whole band).
-        hint0, near = _search(lambda: metric.locate_near(params, op, settings), metric)
-    else:
-        hint0 = locate_hint(metric, params, op, settings)
+    # The perturbed searches start from the nominal one's result (the FRC peak: a short
+    # continuation around the nominal peak instead of the whole band).
+    hint0, near = _locate(metric, params, op, settings)
     if hint0 is not None and hasattr(hint0, "method"):
         # Every perturbed search uses the nominal discretisation (method and harmonic
         # count): a change of either between two evaluations would swamp the quotient.
@@ -271,12 +264,8 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
 
     def at(th, hint=None):  # a metric with a host-side search (the FRC peak) searches again
         if hint is None:
-            moved = with_values(params, names, jnp.asarray(th))
-            if near is not None:
-                hint = _search(lambda: metric.locate_near(moved, op, settings, near),
-                               metric)[0]
-            else:
-                hint = locate_hint(metric, moved, op, settings)
+            hint = _locate(metric, with_values(params, names, jnp.asarray(th)), op, settings,
+                           near)[0]
         return float(value_fn(jnp.asarray(th), params, op, hint))
 
     value = at(theta, hint0)  # the nominal search is the one already done
