@@ -542,3 +542,23 @@ def test_eqx_module_pair_is_pytree():
     batched = jax.vmap(lambda p: physics.pair_force(1e-6, p))(
         jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), pair))
     np.testing.assert_allclose(batched, physics.pair_force(1e-6, pair), rtol=1e-14)
+
+
+def test_closed_form_3x3_solve_equals_lapack():
+    """The thermal network and the static stiffness use Cramer's rule (`_numerics`), not an
+    LU: it must equal numpy's LAPACK solve and inverse on well-conditioned 3 x 3 systems,
+    the thermal conductance matrix among them."""
+    from bsfs_jax._numerics import cofactors_3x3, solve_3x3
+    from bsfs_jax.physics import conductance_matrix
+
+    rng = np.random.default_rng(3)
+    mats = [rng.normal(size=(3, 3)) + 3 * np.eye(3) for _ in range(20)]
+    mats.append(np.asarray(conductance_matrix(0.8, 1.3, 0.2, 0.5, 0.4)))
+    for a in mats:
+        b = rng.normal(size=3)
+        x = np.asarray(solve_3x3(a, b))
+        np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-12, atol=1e-14)
+        c, det = cofactors_3x3(a)
+        np.testing.assert_allclose(float(det), np.linalg.det(a), rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(c).T / float(det), np.linalg.inv(a), rtol=1e-11,
+                                   atol=1e-14)
