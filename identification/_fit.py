@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -224,7 +225,8 @@ def staged_starts(problem: Problem, pts, starts: int, options: SolveOptions, mod
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
         theta0=None, warm_start: bool = True, check_models: bool = True,
-        method: str = "dogleg", model_check: bool = True) -> FitResult:
+        method: str = "dogleg", model_check: bool = True,
+        on_models: Callable[[Problem], None] | None = None) -> FitResult:
     """Fit from several starts; the lowest cost wins and every start is reported.
 
     `theta0` replaces the prior as start 0 (e.g. a previous optimum). `warm_start`: where
@@ -237,7 +239,8 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
     `max_steps` steps with the rejected ones); `method` its descent (`_solve.make_solver`).
     `model_check`: compute the model at the estimate (`FitResult.model`) and mark the fit
     not converged where a record has none (`gate_steady_state`); `identify` does both from
-    its branch check instead.
+    its branch check instead. `on_models(problem)` is called once the records' models are
+    chosen, before the fit (`identify` starts compiling its check's programs there).
     """
     t0 = time.perf_counter()
     options = SolveOptions(method=method, max_steps=2 * max_steps, step_tol=0.1 * STEP_TOL)
@@ -247,6 +250,8 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
         # the staged fit's starts moved onto it.
         problem, pts, modal = first_estimate(
             problem, start_points(problem, max(starts, STAGE1_STARTS), seed))
+    if on_models is not None:
+        on_models(problem)
     if warm_start and "nonlinear" in problem.models:
         # A staged fit: the cheap records first, from many starts (`staged_starts`).
         points, weights, stage1 = staged_starts(problem, pts, starts, options, modal)

@@ -237,7 +237,7 @@ def swept_state(system, frequency_hz, force_coeffs, direction):
     return orbit.state, orbit.converged
 
 
-@bsfs_jax.cached_jit
+@bsfs_jax.cached_jit(fast_compile=True)
 def _branch_kernel(system, freq, force, measured, sweep, harmonics: int = ORBIT_HARMONICS):
     """Per record: the fitted, up-swept and down-swept orbits' (acceleration, stable,
     converged), and the fitted orbit's truncation error (2 x `harmonics` harmonics,
@@ -268,6 +268,19 @@ def _branch_kernel(system, freq, force, measured, sweep, harmonics: int = ORBIT_
     return jax.vmap(one)(freq, force, measured, sweep)
 
 
+def _branch_args(system, freq, force, measured, sweep, harmonics):
+    return (system, jnp.asarray(freq, float), jnp.asarray(force), jnp.asarray(measured),
+            jnp.zeros(len(freq)) if sweep is None else jnp.asarray(sweep, float), harmonics)
+
+
+def prefetch_branches(system, freq, force, measured, sweep=None,
+                      harmonics: int = ORBIT_HARMONICS) -> bool:
+    """Start compiling the program of `branches(...)` with arguments of this layout in the
+    background (`bsfs_jax.cached_jit`'s `prefetch`); the values do not matter."""
+    return _branch_kernel.prefetch(*_branch_args(system, freq, force, measured, sweep,
+                                                 harmonics))
+
+
 def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4,
              harmonics: int = ORBIT_HARMONICS):
     """Per record (lists): the branch label of the orbit the record is fitted on ("single",
@@ -280,9 +293,7 @@ def branches(system, freq, force, measured, sweep=None, rtol: float = 1e-4,
     it did not converge. One compiled program for all of it."""
     (a_fit, s_fit, ok_fit), up, down, trunc = (
         jax.tree_util.tree_map(np.asarray, out) for out in _branch_kernel(
-            system, jnp.asarray(freq, float), jnp.asarray(force), jnp.asarray(measured),
-            jnp.zeros(len(freq)) if sweep is None else jnp.asarray(sweep, float),
-            harmonics))
+            *_branch_args(system, freq, force, measured, sweep, harmonics)))
     labels, evidence = [], []
     for i in range(len(freq)):
         amp = lambda a: float(np.abs(a[i, 0]))

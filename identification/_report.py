@@ -6,6 +6,7 @@ import dataclasses
 import time
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 import bsfs_jax
@@ -97,7 +98,8 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     problem = Problem(data, prior, fit_names, model=model, priors=priors)
     # The model at the estimate (and its check) comes from the branch kernel below: its
     # fitted orbits are the model's, and no separate program solves them again.
-    result = fit(problem, starts=starts, seed=seed, max_steps=max_steps, model_check=False)
+    result = fit(problem, starts=starts, seed=seed, max_steps=max_steps, model_check=False,
+                 on_models=prefetch_check)
     result, branch = check_model(result)
     problem = result.problem  # the models as chosen at the estimate
     unc = uncertainty(result)
@@ -153,6 +155,39 @@ def gate_truncation(result, branch: dict, names, harmonics: int = 16) -> None:
               f"{2 * harmonics}-harmonic orbit failed)", "truncation")
 
 
+def _branch_groups(problem: Problem, theta):
+    """Per speed with periodic-orbit records: (their indices, the arguments of
+    `_orbit_model.branches`: system at `theta`, frequencies, forces, accelerations, sweep
+    directions)."""
+    from ._groups import sweep_direction
+
+    for s in problem.speeds:
+        idx = [i for i, d in enumerate(problem.data)
+               if d.speed_rpm == s and problem.models[i] == "nonlinear"]
+        if idx:
+            recs = [problem.data[i] for i in idx]
+            yield idx, (problem.system_at(theta, s), [d.frequency_hz for d in recs],
+                        np.stack([d.force for d in recs]),
+                        np.stack([d.acceleration for d in recs]),
+                        [sweep_direction(d) for d in recs])
+
+
+def prefetch_check(problem: Problem) -> None:
+    """Start compiling the programs of `check_model` and `uncertainty` (the branch check,
+    the model at the estimate, the static compliance) in the background while the fit
+    runs (`bsfs_jax.cached_jit`'s `prefetch`), with the layout of `problem`'s records and
+    models. Where the fit's estimate re-chooses the models, a program of another layout
+    is compiled when it is called, as without the prefetch."""
+    from ._model import compliance_and_gradient, predictions
+    from ._orbit_model import prefetch_branches
+
+    theta = jnp.zeros(problem.n_params)
+    for _, args in _branch_groups(problem, theta):
+        prefetch_branches(*args, harmonics=problem.structure.orbit_harmonics)
+    predictions.prefetch(theta, problem.fit_data, problem.structure, False)
+    compliance_and_gradient.prefetch(theta, problem.fit_data, problem.structure)
+
+
 def record_branches(problem: Problem, theta, models: dict | None = None) -> dict:
     """For each record on the periodic-orbit model, at `theta`: which branch its orbit is
     ("single", "upper", "lower" or "unresolved"; `_orbit_model.branches`), the evidence, the
@@ -160,22 +195,13 @@ def record_branches(problem: Problem, theta, models: dict | None = None) -> dict
     (16 against 32 harmonics, largest over the usable harmonics). `models` (a dict, filled
     in): {record index: the fitted orbit's acceleration harmonics (nan: no orbit)}."""
     from ._choice import _z
-    from ._groups import sweep_direction
     from ._orbit_model import branches
 
     out = {}
-    for s in problem.speeds:
-        idx = [i for i, d in enumerate(problem.data)
-               if d.speed_rpm == s and problem.models[i] == "nonlinear"]
-        if not idx:
-            continue
-        system = problem.system_at(theta, s)
+    for idx, args in _branch_groups(problem, theta):
+        labels, evidence, trunc, fitted = branches(
+            *args, harmonics=problem.structure.orbit_harmonics)
         recs = [problem.data[i] for i in idx]
-        args = ([d.frequency_hz for d in recs], np.stack([d.force for d in recs]),
-                np.stack([d.acceleration for d in recs]))
-        labels, evidence, trunc, fitted = branches(system, *args,
-                                                   [sweep_direction(d) for d in recs],
-                                                   harmonics=problem.structure.orbit_harmonics)
         for j, i in enumerate(idx):
             if models is not None:
                 models[i] = fitted[j]

@@ -162,7 +162,7 @@ def _solve_lane(theta0, free, data, step_tol, structure, options):
                 steps=sol.stats["num_steps"], codes=codes)
 
 
-@bsfs_jax.cached_jit
+@bsfs_jax.cached_jit(fast_compile=True)
 def _solve_lanes(theta0, free, data, step_tol, structure, options):
     lane = lambda t, f, d: _solve_lane(t, f, d, step_tol, structure, options)
     if options.lanes == "vmap":

@@ -17,6 +17,11 @@ def _poly(x, data, power: int):
         lambda y: jnp.sum(data["w"] * y**power))(x)}
 
 
+@bsfs_jax.cached_jit(fast_compile=True)
+def _poly_fast(x, data, power: int):
+    return _poly.__wrapped__(x, data, power)
+
+
 class _Box(eqx.Module):
     v: jax.Array
 
@@ -30,6 +35,8 @@ def _boxed(x):
 def cache_dir(tmp_path, monkeypatch):
     monkeypatch.setattr(_programs, "_program_dir", lambda: tmp_path / "programs")
     monkeypatch.setattr(_programs, "_loaded", {})
+    monkeypatch.setattr(_programs, "_pending", {})
+    monkeypatch.setattr(_programs, "_waiting", [])
     return tmp_path
 
 
@@ -79,3 +86,54 @@ def test_without_cache_dir_it_is_filter_jit(monkeypatch):
     monkeypatch.setattr(_programs, "_program_dir", lambda: None)
     out = _poly(np.ones(2), {"w": np.ones(2)}, 1)
     assert float(out["value"]) == 2.0
+
+
+def _compiles():
+    """A counter of XLA compilations (jax's compile events) from now on."""
+    seen = {"n": 0}
+
+    def on_event(event, seconds, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            seen["n"] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(on_event)
+    return seen
+
+
+def test_fast_compile_gives_the_same_answers(cache_dir):
+    x = np.linspace(0.0, 1.0, 7)
+    data = {"w": np.linspace(1.0, 2.0, 7)}
+    want = eqx.filter_jit(_poly.__wrapped__)(x, data, 5)
+    got = _poly_fast(x, data, 5)
+    np.testing.assert_allclose(got["value"], want["value"], rtol=1e-14)
+    np.testing.assert_allclose(got["grad"], want["grad"], rtol=1e-14)
+
+
+def test_prefetch_compiles_once_and_the_call_uses_it(cache_dir):
+    x, data = np.linspace(0.0, 1.0, 6), {"w": np.arange(6.0)}
+    assert _poly.prefetch(np.zeros(6), {"w": np.zeros(6)}, 4)  # values do not matter
+    assert not _poly.prefetch(np.ones(6), {"w": np.ones(6)}, 4)  # pending already
+    (start,) = _programs._waiting
+    assert not start.is_set()  # waits for this thread's next hand-off to XLA
+    _poly(np.ones(2), {"w": np.ones(2)}, 1)  # another program: the hand-off
+    assert start.is_set() and _programs._waiting == []
+    _programs._pending[next(iter(_programs._pending))].result(timeout=120)
+    seen = _compiles()
+    got = _poly(x, data, 4)
+    assert seen["n"] == 0  # the prefetch's executable, not a second compilation
+    want = eqx.filter_jit(_poly.__wrapped__)(x, data, 4)
+    np.testing.assert_allclose(got["grad"], want["grad"], rtol=1e-15)
+    assert _programs._pending == {}
+    assert not _poly.prefetch(x, data, 4)  # loaded already
+
+
+def test_call_before_any_hand_off_does_not_wait_forever(cache_dir):
+    # The prefetch's only chance to start is the call itself, which must release it.
+    x, data = np.ones(5), {"w": np.ones(5)}
+    assert _poly.prefetch(x, data, 3)
+    assert float(_poly(x, data, 3)["value"]) == 5.0
+
+
+def test_prefetch_without_cache_dir_does_nothing(monkeypatch):
+    monkeypatch.setattr(_programs, "_program_dir", lambda: None)
+    assert not _poly.prefetch(np.ones(2), {"w": np.ones(2)}, 1)

@@ -148,14 +148,14 @@ def run_identify(args) -> int:
         fig = frf_fit_figure([d.frequency_hz for d, _ in frfs], [d.accelerance for d, _ in frfs],
                              [c for _, c in frfs], [d.variance for d, _ in frfs],
                              [d.name for d, _ in frfs])
-        ui.save_figure(fig, out / "frf_fit.png")
+        ui.save_figure(fig, out / "frf_fit.png", tight=False)
         written.append(out / "frf_fit.png")
     if earlier is not None:
         written.append(_compare(earlier, report, out))
     u = res.uncertainty
     fig2 = correlation_figure(res.problem.names, u.correlation, u.singular_values,
                               u.direction_std, 0.1)
-    ui.save_figure(fig2, out / "correlation.png")
+    ui.save_figure(fig2, out / "correlation.png", tight=False)
     written.append(out / "correlation.png")
     import matplotlib.pyplot as plt
 
