@@ -84,14 +84,23 @@ def markdown(r) -> str:
             f"{'met' if t['warm_met'] else '**not met**'} |")
     lines += ["", "Before this work (session 9, preload set, same machine): 50-52 s cold "
               "(compile 34.7 s in 80 programs), 19.4 s warm (13 s of it tracing). "
-              "2026-11-26 16:12, before the orbit model stopped computing Floquet "
-              "multipliers it does not use and the compliance's gradient went to forward "
-              "mode: preload 39.1 s cold / 9.1 s warm, default 39.6 s / 9.9 s. What remains "
-              "is XLA's time on the size of the programs (about 0.17 ms per instruction of "
-              "optimised HLO on this machine: the fit's solve 6.8 s, the branch check "
-              "7.4 s); compiling the branch check on the second core beside the fit's "
-              "solve was tried and lost (XLA already compiles on both cores: each took "
-              "1.5-1.8x as long, 36 s in all)."]
+              "2026-11-26 16:12: preload 39.1 s cold / 9.1 s warm, default 39.6 s / 9.9 s. "
+              "2026-11-27 08:40, before the check's programs were compiled in the "
+              "background (the code of commit 2dbdf7f, the same machine, one run each): "
+              "preload 30.7-31.8 s cold / 7.9 s warm, default 31.8 s / 8.7 s.", "",
+              "What changed (2026-11-27): while the fit runs, a background thread traces "
+              "and compiles the programs of the check at the estimate (the branch kernel, "
+              "the model, the static compliance; `bsfs_jax.cached_jit`'s `prefetch`). It "
+              "starts when the main thread hands the fit's solve to XLA: tracing holds "
+              "Python's interpreter and XLA does not, so the prefetch's tracing runs on "
+              "the second core. Compiling both programs at once makes each take about 1.5x "
+              "as long (XLA compiles on both cores), which is why starting the prefetch "
+              "earlier, beside the solve's own tracing, gained nothing (28.5 s). The fit's "
+              "solve and the branch kernel compile at XLA's backend optimisation level 1 "
+              "(`cached_jit(fast_compile=True)`): 1.7 s less compilation; the results "
+              "agree with level 2 to 1e-14 relative. The compile column adds both threads' "
+              "seconds, so it can exceed the critical path. Peak memory rose by about "
+              "380 MB, as two programs are compiled at once."]
     return "\n".join(lines) + "\n"
 
 
