@@ -191,6 +191,16 @@ def _in_background(job) -> Future:
     return future
 
 
+def prefetch_jit(jitted, *args, **kwargs) -> Future:
+    """Compile the program of `jitted(*args, **kwargs)` (a `jax.jit` or
+    `equinox.filter_jit` function) on the background thread, starting now; the call made
+    later with arguments of the same layout finds it in jit's cache. The caller waits for
+    the returned future before that call (else both would compile it). For a program that
+    the main thread needs only after other work (an integration running, another program
+    compiling): its tracing then runs on the second core."""
+    return _in_background(lambda: jitted.lower(*args, **kwargs).compile())
+
+
 def cached_jit(fn=None, *, fast_compile: bool = False):
     """`equinox.filter_jit(fn)` whose traced programs are kept across processes (module
     docstring). Arrays are traced, everything else is static, as with `filter_jit`.

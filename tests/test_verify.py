@@ -203,3 +203,37 @@ def test_verification_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     with pytest.raises(AssertionError, match="verified again"):
         sweep(problem, [20.0, 35.0], config=cfg, verify=VerifySettings(near_tol=2e-4),
               checkpoint_dir=tmp_path, progress=False)
+
+
+def test_prefetched_orbit_checks_compile_once_and_agree():
+    # `_verified_sweep` compiles the orbit checks in the background while the sweep
+    # integrates (`OrbitTrials.prefetch`); the checks then find that program in jit's
+    # cache: not even traced again (with a persistent compilation cache a second
+    # compilation would not show, its tracing would), and the closed-form verdicts.
+    import jax
+
+    from bsfs_jax.analysis._orbit_trials import OrbitTrials
+    from bsfs_jax.solvers import _orbit_check
+
+    problem = SweepProblem(linear_oscillator, _omega_setup, jnp.array([0.02, 1.0, 1.0]),
+                           jnp.zeros(2), "omega")
+    settings = VerifySettings()
+    OrbitTrials(problem, settings, problem.observe).prefetch()
+    (pending,) = [f for k, f in _orbit_check._PREFETCHED.items()
+                  if k[0] == id(linear_oscillator)]
+    pending.result(timeout=300)  # compiled in the background
+    compiles = {"n": 0}
+
+    def on_event(event, seconds, **kwargs):
+        if event in ("/jax/core/compile/jaxpr_trace_duration",
+                     "/jax/core/compile/backend_compile_duration") and \
+                "_check_batch" in kwargs.get("fun_name", ""):
+            compiles["n"] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(on_event)
+    res, v = _run(problem, [20.0, 35.0], transient=10)
+    assert list(v["motion"][0]) == ["period-1", "period-1"]
+    mu = np.exp(-0.02 * 2 * np.pi / np.array([20.0, 35.0]))
+    np.testing.assert_allclose(v["max_multiplier"][0], mu, rtol=1e-6)
+    assert compiles["n"] == 0  # the prefetched program served the checks
+    assert not any(k[0] == id(linear_oscillator) for k in _orbit_check._PREFETCHED)

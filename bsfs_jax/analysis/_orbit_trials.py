@@ -5,7 +5,7 @@ samples that follow the orbit's linearisation (see `_verify.py`)."""
 import numpy as np
 
 from .._numerics import half_range
-from ..solvers import check_orbits
+from ..solvers import check_orbits, prefetch_check_orbits
 from . import _evidence as ev
 from ._classify import strobe_period
 
@@ -26,6 +26,14 @@ class OrbitTrials:
 
     def __init__(self, problem, settings, observe: int):
         self.p, self.s, self.obs = problem, settings, observe
+
+    def prefetch(self) -> None:
+        """Start compiling the orbit checks' program in the background (a sweep asks for
+        it before it integrates; `orbits` then finds it compiled)."""
+        s = self.s
+        prefetch_check_orbits(self.p.vector_field, self.p.setup, self.p.data, s.batch,
+                              self.p.n_states, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
+                              max_period=s.max_period, settings=s.orbit_settings)
 
     def orbits(self, items, again: bool = True):
         """items: list of (value, y, scale, n) -> list of OrbitCheck rows (host)."""

@@ -305,6 +305,7 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
     """`sweep` followed by `verify_sweep`, with the per-point minimum transient."""
     from pathlib import Path
 
+    from ._orbit_trials import OrbitTrials
     from ._verify import minimum_transient, verify_sweep
 
     vals = np.asarray(values, dtype=float)
@@ -315,6 +316,8 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
                                           fallback=config.transient_periods)
             if config.lyapunov:
                 transient = np.maximum(transient, config.lyapunov_align_periods + 1)
+    # The verifier's orbit checks compile on the second core while the sweep integrates.
+    OrbitTrials(problem, verify, problem.observe).prefetch()
     res = sweep(problem, values, mode=mode, direction=direction, config=config, y0=y0,
                 transient=transient, checkpoint_dir=checkpoint_dir, progress=progress,
                 shard=shard, segments=segments, metadata=metadata)

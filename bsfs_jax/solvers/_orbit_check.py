@@ -17,7 +17,9 @@ stroboscopic points o_1..o_max (to find the minimal period) and its samples over
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from .._programs import prefetch_jit
 from ._integrate import SolverSettings, integrate
 from ._results import RESULTS
 from ._shooting import Scaled, _Variational
@@ -128,6 +130,31 @@ def _check_batch(vector_field, setup, data, values, y_guess, scale, n, tol, max_
     return jax.vmap(one)(values, y_guess, scale, n)
 
 
+_PREFETCHED: dict = {}  # ids of (vector field, setup), batch, states -> future program
+
+
+def _args(values, y_guess, scale, n, tol, max_steps, max_period, spp):
+    return (jnp.asarray(values, dtype=float), jnp.asarray(y_guess, dtype=float),
+            jnp.asarray(scale, dtype=float), jnp.asarray(n, dtype=int), float(tol),
+            int(max_steps), int(max_period), int(spp))
+
+
+def prefetch_check_orbits(vector_field, setup, data, batch: int, n_states: int, *,
+                          tol: float = 1e-6, max_steps: int = 16, max_period: int = 16,
+                          samples_per_period: int = 32,
+                          settings: SolverSettings = CHECK_SETTINGS) -> None:
+    """Start compiling `check_orbits`' program for batches of `batch` points of
+    `n_states` states in the background (`bsfs_jax._programs.prefetch_jit`): the sweep
+    verifier asks for it before its sweep integrates, and `check_orbits` waits for it."""
+    key = (id(vector_field), id(setup), int(batch), int(n_states))
+    if key in _PREFETCHED:
+        return
+    dummy = _args(np.ones(batch), np.ones((batch, n_states)), np.ones((batch, n_states)),
+                  np.ones(batch, int), tol, max_steps, max_period, samples_per_period)
+    _PREFETCHED[key] = prefetch_jit(_check_batch, vector_field, setup, data, *dummy[:4],
+                                    *dummy[4:], settings)
+
+
 def check_orbits(vector_field, setup, data, values, y_guess, scale, n, *, tol: float = 1e-6,
                  max_steps: int = 16, max_period: int = 16, samples_per_period: int = 32,
                  settings: SolverSettings = CHECK_SETTINGS) -> OrbitCheck:
@@ -137,10 +164,15 @@ def check_orbits(vector_field, setup, data, values, y_guess, scale, n, *, tol: f
     period)` at one parameter value (`data`: a pytree of arrays, traced); `scale` (B, d)
     the per-coordinate scale of the unknowns; `n` (B,) integer periods in 1..max_period.
     Compiled once per (vector field, setup, data structure, max_period,
-    samples_per_period, settings): values, states, scales and periods are traced.
+    samples_per_period, settings): values, states, scales and periods are traced. Waits
+    for a prefetch of the same batch layout (`prefetch_check_orbits`) rather than compiling
+    the program a second time.
     """
-    return _check_batch(vector_field, setup, data,
-                        jnp.asarray(values, dtype=float), jnp.asarray(y_guess, dtype=float),
-                        jnp.asarray(scale, dtype=float), jnp.asarray(n, dtype=int),
-                        float(tol), int(max_steps), int(max_period), int(samples_per_period),
-                        settings)
+    args = _args(values, y_guess, scale, n, tol, max_steps, max_period, samples_per_period)
+    pending = _PREFETCHED.pop((id(vector_field), id(setup), *np.shape(y_guess)), None)
+    if pending is not None:
+        try:  # the prefetched program (same layout: found in jit's cache)
+            pending.result()
+        except Exception:  # noqa: BLE001 - compiled by the call below instead
+            pass
+    return _check_batch(vector_field, setup, data, *args, settings)
