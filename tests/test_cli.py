@@ -279,3 +279,23 @@ def test_modes_and_argument_errors_do_not_load_the_solvers(tmp_path):
                          env=env, timeout=300)
     line = [x for x in out.stdout.splitlines() if x.startswith("CODES")]
     assert line == ["CODES [0, 1] HEAVY []"], out.stdout[-2000:] + out.stderr[-2000:]
+
+
+def test_continue_starts_harmonic_balance_high_where_a_joint_opens():
+    # Where the force opens a joint inside the interval (the linearised lift-off test of
+    # the design metrics), hb starts at 64 harmonics; elsewhere, or when given, as asked.
+    from bsfs_jax import preset
+    from bsfs_jax.cli._continue_cmd import CONTACT_HARMONICS, HARMONICS, starting_harmonics
+    from bsfs_jax.design import opens_joint
+
+    p = preset()
+    assert opens_joint(p, 100.0, 1000.0, 1250.0) and not opens_joint(p, 10.0, 1000.0, 1250.0)
+    h, note = starting_harmonics(p, 100.0, 1250.0, 1000.0, "auto", None)
+    assert h == CONTACT_HARMONICS and "loses contact" in note
+    assert starting_harmonics(p, 100.0, 1000.0, 1250.0, "hb", None)[0] == CONTACT_HARMONICS
+    assert starting_harmonics(p, 10.0, 1000.0, 1250.0, "auto", None) == (HARMONICS, None)
+    assert starting_harmonics(p, 100.0, 1000.0, 1250.0, "auto", 16) == (16, None)
+    assert starting_harmonics(p, 100.0, 1000.0, 1250.0, "shooting", None) == (HARMONICS, None)
+    # a looser tolerance needs half as many near the peak
+    assert starting_harmonics(p, 100.0, 1000.0, 1250.0, "auto", None, 1e-4)[0] == \
+        CONTACT_HARMONICS // 2
