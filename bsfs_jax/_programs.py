@@ -191,6 +191,12 @@ def _in_background(job) -> Future:
     return future
 
 
+def in_background(job) -> Future:
+    """Run `job()` (typically: build arguments, then `jitted.lower(...).compile()`) on the
+    prefetch thread, after any prefetch queued before it; the future holds its result."""
+    return _in_background(job)
+
+
 def prefetch_jit(jitted, *args, **kwargs) -> Future:
     """Compile the program of `jitted(*args, **kwargs)` (a `jax.jit` or
     `equinox.filter_jit` function) on the background thread, starting now; the call made

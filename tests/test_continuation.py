@@ -189,6 +189,24 @@ def test_continuation_does_not_retrace(duffing_frc):
     assert len(branch) == 4 and branch.info["stop_reason"] == "max_points"
 
 
+def test_prefetched_corrector_is_not_traced_again(duffing_frc):
+    # `bsfs continue` compiles the cross-check's corrector in the background
+    # (`prefetch_corrector`); the continuation then finds it in jit's cache: no trace, and
+    # the same branch as without the prefetch (another amplitude coordinate: another
+    # program than the fixture's, so nothing is cached before the prefetch).
+    from bsfs_jax.solvers import Shooting, prefetch_corrector
+
+    family = frequency_family(**HARDENING)
+    method = Shooting()  # no harmonic count to raise: one program along the branch
+    prefetch_corrector(family, duffing, method, jnp.array([0.1, 0.0]), 0.8,
+                       amplitude_index=1).result(timeout=300)
+    branch = continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                             vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                             p_scale=1.0, amplitude_index=1, method=method, max_points=30)
+    assert branch.info["corrector_traces"] == 0
+    np.testing.assert_allclose(branch.p, duffing_frc.p[:30], rtol=1e-12)
+
+
 def test_duffing_period_doubling_matches_brute_force():
     """Double-well Duffing x'' + 0.3 x' - x + x^3 = gamma cos(1.2 t): the period-1 orbit
     in one well period-doubles as gamma grows (the classic route to chaos)."""

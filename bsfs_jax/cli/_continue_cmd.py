@@ -154,7 +154,13 @@ def run_continue(args) -> int:
     from ..machine import bsfs_family, simulate
     from ..params import params_summary
     from ..plotting import plot_continuation
-    from ..solvers import HarmonicBalance, Shooting, SolverSettings, continue_orbits
+    from ..solvers import (
+        HarmonicBalance,
+        Shooting,
+        SolverSettings,
+        continue_orbits,
+        prefetch_corrector,
+    )
 
     if not (args.start > 0 and args.stop > 0) or args.start == args.stop:
         raise ui.CLIError(f"--start and --stop must be positive and differ, got {args.start} "
@@ -185,7 +191,22 @@ def run_continue(args) -> int:
                      transient_periods=args.transient_periods, periods=1,
                      samples_per_period=64, solver="dopri5-fused").final_state
 
+    # Shooting's corrector (the folds' cross-check, or auto's fallback) compiles on the
+    # second core while harmonic balance continues.
+    pending = None if args.method == "shooting" or (
+        args.method == "hb" and args.no_cross_check) else prefetch_corrector(
+            family, family.vector_field, shooting, guess, args.start, amplitude_index=2)
+
+    def wait():
+        if pending is not None:
+            try:
+                pending.result()
+            except Exception:  # noqa: BLE001 - compiled when it is called instead
+                pass
+
     def run(method):
+        if method is shooting:
+            wait()
         print(f"continuing from {args.start:g} to {args.stop:g} Hz ({method.name}) ...",
               flush=True)
         return continue_orbits(family, guess, args.start, args.stop, method=method,
@@ -199,6 +220,7 @@ def run_continue(args) -> int:
     primary = branch.method
     other = shooting if isinstance(primary, HarmonicBalance) else HarmonicBalance(
         harmonics=max(harmonics, 16), error_tol=args.hb_tol)
+    wait()
     checks = [] if args.no_cross_check else _cross_check_folds(family, branch, other,
                                                                settings, args)
 

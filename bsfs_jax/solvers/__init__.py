@@ -17,6 +17,7 @@ from ._integrate import integrate as integrate
 from ._integrate import is_concrete as is_concrete
 from ._kernel import family_amplitudes as family_amplitudes
 from ._kernel import family_residual as family_residual
+from ._kernel import prefetch_corrector as prefetch_corrector
 from ._lanes import integrate_lanes as integrate_lanes
 from ._lanes import kernel_backend as kernel_backend
 from ._method import AbstractOrbitMethod as AbstractOrbitMethod

@@ -128,6 +128,36 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
     return jax.jit(fn)
 
 
+def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: int = 1,
+                       max_newton: int = 8, amplitude_index: int = 0):
+    """Start compiling, on the background thread (`bsfs_jax._programs.in_background`), the
+    corrector program that `continue_orbits(family, y_guess, p, ..., method=method)` with
+    these arguments will call; its first call then finds it in jit's cache. For a
+    continuation that follows the current one (`bsfs continue`'s cross-check of the folds
+    by the other method): its tracing runs on the second core while this thread computes.
+    Returns the future; wait for it before that continuation (else both compile it)."""
+    from .._programs import in_background
+    from ._orbit import _init_core
+    from ._shooting import default_scale, float_leaves_to_arrays
+
+    def job():
+        fam = prepare_outside(float_leaves_to_arrays(family))
+        y = jnp.asarray(y_guess, dtype=float)
+        scale = getattr(fam, "scale", None)
+        scale = default_scale(y) if scale is None else jnp.broadcast_to(
+            jnp.asarray(scale, dtype=float), y.shape)
+        z = eqx.filter_eval_shape(lambda: _init_core(method, vector_field, y, *fam(float(p)),
+                                                     n_periods, scale))
+        n = z.shape[0] + 1
+        dyn, static = eqx.partition(fam, eqx.is_array)
+        fn = _compiled(static, vector_field, method, int(n_periods), int(max_newton),
+                       int(amplitude_index), bool(method.uses_chord))
+        fn.lower(dyn, scale, np.asarray(1.0), np.asarray(1e-8), np.zeros(n), np.zeros(n),
+                 np.full((n, n), np.nan), np.arange(n, dtype=np.int32)).compile()
+
+    return in_background(job)
+
+
 @dataclasses.dataclass
 class Kernel:
     """Holds the static parts and calls the jitted corrector with array arguments."""
