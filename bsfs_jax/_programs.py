@@ -274,14 +274,23 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
         whether a prefetch was started (not where the plain program is used, or the
         program is loaded or pending already)."""
         prep = prepare(args, kwargs)
-        if prep is None:
-            return False
+        return False if prep is None else _prefetch(prep, wait=True)
+
+    def prefetch_now(*args, **kwargs) -> bool:
+        """`prefetch` that starts at once, for a program the main thread needs only after
+        work that is not a kept program's compilation (a continuation running)."""
+        prep = prepare(args, kwargs)
+        return False if prep is None else _prefetch(prep, wait=False)
+
+    def _prefetch(prep, wait: bool) -> bool:
         key, static, treedef, leaves, folder = prep
         if key in _loaded or key in _pending:
             return False
-
         start = threading.Event()
-        _waiting.append(start)
+        if wait:
+            _waiting.append(start)
+        else:
+            start.set()
 
         def job():
             start.wait()
@@ -294,4 +303,5 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
 
     call.plain = jitted
     call.prefetch = prefetch
+    call.prefetch_now = prefetch_now
     return call

@@ -480,3 +480,26 @@ def test_cli_optimize_records_the_gradient_check(tmp_path):
                  "--out", str(tmp_path / "o2")]) == 0
     unchecked = json.loads((tmp_path / "o2" / "optimize.json").read_text())["gradient_check"]
     assert unchecked["passed"] is None and "not checked" in unchecked["summary"]
+
+
+def test_peak_hint_layout_is_the_located_hints(params, frc_100n):
+    # `prefetch_programs` compiles the FRC peak's programs during the search from a hint
+    # laid out in advance; it serves only if that layout is the located hint's exactly
+    # (tree, static method, shapes, dtypes, weak types). At 100 N a joint opens (shooting).
+    import jax
+
+    from bsfs_jax.design import get_metric
+    from bsfs_jax.design._orbit import peak_hint_layout
+    from bsfs_jax.design._sensitivity import locate_hint
+
+    op = OperatingPoint(1.0, 100.0)
+    layout = peak_hint_layout(params, 100.0, FRC_100N)
+    hint = locate_hint(get_metric("frc_peak"), params, op, FRC_100N)  # the fixture's search
+    (la, ta), (lb, tb) = (jax.tree_util.tree_flatten(h) for h in (layout, hint))
+    assert ta == tb
+    assert [(x.shape, x.dtype, x.weak_type) for x in la] == \
+        [(x.shape, x.dtype, x.weak_type) for x in lb]
+    # No joint opens at 10 N: harmonic balance, whose harmonic count the search finds.
+    assert peak_hint_layout(params, 10.0, FRC_100N) is None
+    assert peak_hint_layout(params, 100.0, dataclasses.replace(FRC_100N,
+                                                               frc_method="hb")) is None

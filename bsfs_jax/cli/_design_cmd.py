@@ -137,6 +137,7 @@ def run_sensitivity(args) -> int:
         get_metric,
         gradient_not_checked,
         paper_crosscheck,
+        prefetch_programs,
         probe_gradient,
         sensitivities,
     )
@@ -154,6 +155,9 @@ def run_sensitivity(args) -> int:
     out = ui.out_dir(args.out)
     t0 = time.perf_counter()
     try:
+        # The value program of the probes compiles beside the search (the gradient's too).
+        prefetch_programs(metric.name, params, names, frequency_hz=args.frequency,
+                          force_n=args.force, value=not args.no_fd_probe or args.check_fd)
         res = sensitivities(metric.name, params, names, frequency_hz=args.frequency,
                             force_n=args.force)
         t_ad = time.perf_counter() - t0

@@ -59,6 +59,7 @@ if TYPE_CHECKING:
     from ._sensitivity import compiled as compiled
     from ._sensitivity import evaluate as evaluate
     from ._sensitivity import finite_difference_sensitivities as finite_difference_sensitivities
+    from ._sensitivity import prefetch_programs as prefetch_programs
     from ._sensitivity import sensitivities as sensitivities
     from ._sensitivity import with_values as with_values
 
@@ -106,6 +107,7 @@ _LAZY = {
     "compiled": "._sensitivity",
     "evaluate": "._sensitivity",
     "finite_difference_sensitivities": "._sensitivity",
+    "prefetch_programs": "._sensitivity",
     "sensitivities": "._sensitivity",
     "with_values": "._sensitivity",
 }

@@ -32,6 +32,7 @@ from ._orbit import (
     locate_frc_peak,
     locate_frc_peak_near,
     operating_orbit,
+    peak_hint_layout,
 )
 
 
@@ -55,12 +56,16 @@ class Metric(MetricInfo):
       peak by continuation), None for metrics that need none;
     - `locate_near(params, op, settings, near=None) -> (hint, near)`: the same search,
       with what it found (`near`) to start the next one from, for nearby parameters
-      (finite differences); None where `locate` has nothing to reuse.
+      (finite differences); None where `locate` has nothing to reuse;
+    - `hint_layout(params, op, settings)`: a hint laid out as `locate` will return it
+      (values meaningless) where that is known before the search, else None (for
+      compiling `fn`'s programs while the search runs).
     """
 
     fn: Callable = dataclasses.field(repr=False, compare=False)
     locate: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
     locate_near: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
+    hint_layout: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
 
 
 # -- static metrics ---------------------------------------------------------------------
@@ -195,20 +200,25 @@ def frc_peak(params, op: OperatingPoint, settings: OrbitSettings = OrbitSettings
     return frc_peak_value(params, op.force_n, hint)
 
 
-# The functions of each metric in `METRIC_INFO`: (fn, locate, locate_near).
+def _frc_hint_layout(params, op, settings):
+    return peak_hint_layout(params, op.force_n, settings)
+
+
+# The functions of each metric in `METRIC_INFO`: (fn, locate, locate_near, hint_layout).
 _FUNCTIONS = {
-    "frc_peak": (frc_peak, _locate_frc, _locate_frc_near),
-    "amplitude": (orbit_amplitude, None, None),
-    "natural_frequency": (natural_frequency, None, None),
-    "static_stiffness": (static_stiffness, None, None),
-    "floquet": (floquet_modulus, None, None),
-    "thermal_error": (thermal_error, None, None),
-    "frf_peak": (frf_peak, None, None),
+    "frc_peak": (frc_peak, _locate_frc, _locate_frc_near, _frc_hint_layout),
+    "amplitude": (orbit_amplitude, None, None, None),
+    "natural_frequency": (natural_frequency, None, None, None),
+    "static_stiffness": (static_stiffness, None, None, None),
+    "floquet": (floquet_modulus, None, None, None),
+    "thermal_error": (thermal_error, None, None, None),
+    "frf_peak": (frf_peak, None, None, None),
 }
 METRICS: dict[str, Metric] = {
-    name: Metric(**dataclasses.asdict(info), fn=fn, locate=locate, locate_near=near)
+    name: Metric(**dataclasses.asdict(info), fn=fn, locate=locate, locate_near=near,
+                 hint_layout=layout)
     for name, info in METRIC_INFO.items()
-    for fn, locate, near in (_FUNCTIONS[name],)
+    for fn, locate, near, layout in (_FUNCTIONS[name],)
 }
 
 

@@ -162,6 +162,26 @@ class PeakHint(eqx.Module):
     method: object = eqx.field(static=True)
 
 
+def peak_hint_layout(params, force_n, settings: OrbitSettings):
+    """A `PeakHint` laid out as `locate_frc_peak(params, force_n, settings)` will return
+    it (the values mean nothing), where that is known before the search: the FRC is
+    continued by shooting (`frc_method` "shooting", or "auto" where the force opens a
+    joint in the band, as `locate_frc_peak` decides). None for harmonic balance, whose
+    harmonic count the search finds. For compiling the peak's programs while the search
+    runs (`design.prefetch_programs`)."""
+    if settings.frc_method == "auto":
+        f1 = float(_first_frequency(params))
+        if not opens_joint(params, force_n, settings.frc_band[0] * f1,
+                           settings.frc_band[1] * f1):
+            return None
+    elif settings.frc_method != "shooting":
+        return None
+    d = 6  # the drive's state: three displacements, three velocities
+    n = d + 1  # single shooting's unknowns and the frequency
+    return PeakHint(jnp.zeros(n), jnp.zeros(n), jnp.zeros((n, n)), jnp.ones(d),
+                    jnp.asarray(1.0), jnp.asarray(1.0), Shooting())
+
+
 def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
                     stop_hz=None, progress=False):
     """(PeakHint, Branch): the FRC peak over `settings.frc_band` x f1 (or start/stop).

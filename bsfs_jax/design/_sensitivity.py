@@ -209,6 +209,50 @@ class SensitivityResult:
         return "\n".join(lines)
 
 
+def _pinned(settings: OrbitSettings, hint) -> OrbitSettings:
+    """The settings of the finite differences' searches around a nominal `hint`: every
+    perturbed search uses the nominal discretisation (method and harmonic count), as a
+    change of either between two evaluations would swamp the quotient."""
+    if hint is None or not hasattr(hint, "method"):
+        return settings
+    if hasattr(hint.method, "harmonics"):
+        h = int(hint.method.harmonics)
+        return dataclasses.replace(settings, frc_method="hb", frc_harmonics=h,
+                                   frc_max_harmonics=h, frc_tol=1.0)
+    return dataclasses.replace(settings, frc_method="shooting")
+
+
+def prefetch_programs(metric_name: str, params: BallScrewParams, names=DESIGN_PARAMETERS,
+                      *, frequency_hz=None, force_n=None,
+                      settings: OrbitSettings = OrbitSettings(), value: bool = True,
+                      gradient: bool = True) -> int:
+    """Start compiling the metric's value and/or value-and-gradient programs on a
+    background thread (`cached_jit`'s `prefetch_now`), where its host-side search (the FRC
+    peak's continuation) returns a hint of a layout known before it
+    (`Metric.hint_layout`): the programs then compile on the second core while the search
+    runs, and `sensitivities` / the finite-difference probes (whose searches keep the
+    nominal discretisation, `_pinned`) find them ready. Returns how
+    many were started (0 for a metric without a search, or whose hint's layout the search
+    decides, or one registered outside the package)."""
+    metric = get_metric(metric_name)
+    if metric.hint_layout is None:
+        return 0
+    names = check_parameter_names(names)
+    op = operating_point(metric, frequency_hz, force_n)
+    layout = metric.hint_layout(params, op, settings)
+    if layout is None:
+        return 0
+    theta = jnp.asarray(parameter_values(params, names))
+    _, grad_fn = compiled(metric.name, names, settings)
+    value_fn, _ = compiled(metric.name, names, _pinned(settings, layout))  # the probes'
+    started = 0
+    for fn, wanted in ((grad_fn, gradient), (value_fn, value)):
+        start = getattr(fn.func, "prefetch_now", None)
+        if wanted and start is not None:
+            started += bool(start(theta, params, op, layout, **fn.keywords))
+    return started
+
+
 def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAMETERS, *,
                   frequency_hz=None, force_n=None,
                   settings: OrbitSettings = OrbitSettings()) -> SensitivityResult:
@@ -222,6 +266,8 @@ def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAME
     op = operating_point(metric, frequency_hz, force_n)
     theta = parameter_values(params, names)
     _, value_and_grad = compiled(metric.name, names, settings)
+    prefetch_programs(metric.name, params, names, frequency_hz=frequency_hz,
+                      force_n=force_n, settings=settings, value=False)
     hint = locate_hint(metric, params, op, settings)
     value, grad = value_and_grad(jnp.asarray(theta), params, op, hint)
     value, grad = float(value), np.asarray(grad)
@@ -251,15 +297,7 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     # The perturbed searches start from the nominal one's result (the FRC peak: a short
     # continuation around the nominal peak instead of the whole band).
     hint0, near = _locate(metric, params, op, settings)
-    if hint0 is not None and hasattr(hint0, "method"):
-        # Every perturbed search uses the nominal discretisation (method and harmonic
-        # count): a change of either between two evaluations would swamp the quotient.
-        if hasattr(hint0.method, "harmonics"):
-            h = int(hint0.method.harmonics)
-            settings = dataclasses.replace(settings, frc_method="hb", frc_harmonics=h,
-                                           frc_max_harmonics=h, frc_tol=1.0)
-        else:
-            settings = dataclasses.replace(settings, frc_method="shooting")
+    settings = _pinned(settings, hint0)
     value_fn, _ = compiled(metric.name, names, settings)
 
     def at(th, hint=None):  # a metric with a host-side search (the FRC peak) searches again
