@@ -38,7 +38,9 @@ CALLS = []
 def fake_bifurcations(omega):
     """A fold in every row (drifting by less than a grid step) and a period doubling in
     the first row only: two curves, kinds never mixed."""
-    CALLS.append(omega)
+    import threading
+
+    CALLS.append((omega, threading.current_thread().name))
     out = [{"x": 0.24 + 0.05 * (omega - 1.2), "kind": "fold", "amplitude": 1.0}]
     if omega < 1.22:
         out.append({"x": 0.245, "kind": "period-doubling", "amplitude": 1.1})
@@ -72,6 +74,9 @@ def test_atlas_shapes_and_verified_period_one(duffing_atlas):
         assert a.orbit_residual[j, 0] < 1e-6 and a.max_multiplier[j, 0] < 1
     assert a.metadata["rows_computed_this_run"] == 2 and a.metadata["test"] is True
     assert [b["y"] for b in a.bifurcations] == [1.2, 1.2, 1.25]
+    # The rows' bifurcation runs went to worker threads beside the sweeps, once per row.
+    assert sorted(w for w, _ in CALLS[:2]) == sorted(OMEGAS.tolist())
+    assert all(name.startswith("bsfs-row") for _, name in CALLS[:2])
 
 
 def test_atlas_netcdf_round_trip(duffing_atlas, folder):

@@ -17,6 +17,8 @@ import hashlib
 import json
 import re
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -257,6 +259,31 @@ def _row_fingerprint(problem, x, y, config, verify, bif) -> str:
     return h.hexdigest()[:24]
 
 
+#: Worker threads for the rows' bifurcation runs beside the sweeps (`_rows_in_background`).
+ROW_WORKERS = 2
+
+
+def _row_done(data, fingerprint) -> bool:
+    return data is not None and str(data.get("fingerprint")) == fingerprint
+
+
+@contextmanager
+def _rows_in_background(row_bifurcations, y, rows):
+    """{row: future of `row_bifurcations(y[row])`} for `rows`, run by `ROW_WORKERS`
+    threads while the caller runs the verified sweeps: the bifurcation runs are
+    host-driven continuations whose every step is a compiled program, and XLA leaves
+    Python's interpreter free while it computes, so both cores work. On leaving, the
+    runs not started are cancelled and the running ones awaited."""
+    if row_bifurcations is None or not rows:
+        yield {}
+        return
+    pool = ThreadPoolExecutor(max_workers=ROW_WORKERS, thread_name_prefix="bsfs-row")
+    try:
+        yield {j: pool.submit(row_bifurcations, float(y[j])) for j in rows}
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def _check_bifurcations(found, y) -> list:
     out = []
     for b in found or []:
@@ -313,7 +340,8 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
       (`metadata["rows_computed_this_run"]`); a folder of another atlas is refused.
     - `progress`: a tqdm bar over rows; `shard`: as for `sweep`.
     - `row_bifurcations(y) -> [{"x", "kind", "amplitude", ...}]`: bifurcation points of row
-      y (kind "fold", "period-doubling", "neimark-sacker" or "branch-point").
+      y (kind "fold", "period-doubling", "neimark-sacker" or "branch-point"); called from
+      `ROW_WORKERS` worker threads while the sweeps run, so it must be thread-safe.
     - `metadata`: JSON-able entries kept in the atlas; `x_label`, `y_label`: names in words.
     - `batch`: "rows" (one sweep per row), "grid" (the rows still to compute as one sweep
       of all their points, `_atlas_grid.py`: one batch, sharded like any sweep; where the
@@ -342,24 +370,27 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
     grid = {}
     if batch == "grid" or (batch == "auto" and p0.resolved_engine(config) == "kernel"):
         grid = _run_grid(problems, x, config, verify, folder, shard, progress, ckpt, prints)
-    for j in tqdm(range(y.size), unit="row", disable=not progress or bool(grid),
-                  desc=f"atlas {y_name}"):
-        data = ckpt.load(j)
-        if data is None or str(data.get("fingerprint")) != prints[j]:
-            computed += 1
-            sub = None if folder is None else folder / f"row_{j:04d}"
-            verdicts = grid[j] if j in grid else _run_row(problems[j], x, config, verify,
-                                                          sub, shard)
-            found = [] if row_bifurcations is None else _check_bifurcations(
-                row_bifurcations(float(y[j])), y[j])
-            data = {k: (v.astype(str) if v.dtype.kind in "USO" else v)
-                    for k, v in verdicts.items()}
-            data.update(fingerprint=np.array(prints[j]),
-                        bifurcations=np.array(json.dumps(found)))
-            ckpt.save(j, data)
-        bifs += json.loads(str(data["bifurcations"]))
-        rows.append({k: v for k, v in data.items() if k not in ("fingerprint",
-                                                                 "bifurcations")})
+    todo = [j for j in range(y.size) if not _row_done(ckpt.load(j), prints[j])]
+    with _rows_in_background(row_bifurcations, y, todo) as found_later:
+        for j in tqdm(range(y.size), unit="row", disable=not progress or bool(grid),
+                      desc=f"atlas {y_name}"):
+            data = ckpt.load(j)
+            if not _row_done(data, prints[j]):
+                computed += 1
+                sub = None if folder is None else folder / f"row_{j:04d}"
+                verdicts = grid[j] if j in grid else _run_row(problems[j], x, config,
+                                                              verify, sub, shard)
+                found = [] if row_bifurcations is None else _check_bifurcations(
+                    found_later[j].result() if j in found_later else
+                    row_bifurcations(float(y[j])), y[j])
+                data = {k: (v.astype(str) if v.dtype.kind in "USO" else v)
+                        for k, v in verdicts.items()}
+                data.update(fingerprint=np.array(prints[j]),
+                            bifurcations=np.array(json.dumps(found)))
+                ckpt.save(j, data)
+            bifs += json.loads(str(data["bifurcations"]))
+            rows.append({k: v for k, v in data.items() if k not in ("fingerprint",
+                                                                     "bifurcations")})
     verdicts = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
     _, units = p0.labels()
     meta = {"created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
