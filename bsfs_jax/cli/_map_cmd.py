@@ -15,6 +15,11 @@ _SUFFIXES = ("_n_s_per_m", "_m_per_n23", "_n_per_um", "_w_per_m2k", "_w_per_k", 
 #: Most values per axis, points of one atlas, and samples (points x periods x samples
 #: per period).
 MAX_NUM = 10**4
+#: The row continuations' largest step, in units of --ds. The state scale comes from the
+#: first orbit, far below the resonance, so near the peak a branch is hundreds of scaled
+#: units long: with 10 x ds the README's 16 x 8 map ran out of its 200 points before the
+#: end of the band in every row (and drew no fold curve); with 100 x ds the rows reach it.
+DS_MAX_FACTOR = 100
 MAX_POINTS = 10**6
 MAX_SAMPLES = 10**9
 
@@ -226,7 +231,8 @@ def run(args) -> int:
             family = bsfs_family(p, force)
             branch, why = continue_by_method(
                 lambda method: continue_orbits(family, guess, lo, hi, method=method,
-                                               ds=args.ds, max_points=args.max_points,
+                                               ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
+                                               max_points=args.max_points,
                                                amplitude_index=2),
                 args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol),
                 Shooting(), args.hb_tol)
