@@ -12,7 +12,9 @@ model, the branch kernel), against 1.5 s running the programs.
   `bsfs_jax` (any edit of the code makes new keys),
 - the versions of jax, jaxlib and the numerical libraries, the backend, 64-bit mode, the
   default matmul precision and `EQX_ON_ERROR` (equinox's runtime checks),
-- the static arguments and the layout (tree structure, shapes, dtypes) of the traced ones.
+- the static arguments and the layout (tree structure, shapes, dtypes) of the traced ones;
+  a static function of bsfs_jax (a sweep problem's vector field) by its module and name,
+  its code being in the digest; a program with any other function is not kept.
 
 A later process deserialises the program and compiles it, which jax's persistent cache
 answers from disk. It is used only where jax's persistent cache is on (the CLI turns it on,
@@ -30,9 +32,11 @@ floating-point arithmetic (no fast-math). The plain `filter_jit` path compiles a
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import importlib.metadata
+import inspect
 import logging
 import os
 import queue
@@ -87,15 +91,45 @@ def _program_dir() -> Path | None:
     return Path(root) / "programs" if root else None
 
 
-def _stable_text(obj) -> str | None:
-    """A text of `obj` that is the same in every process, or None (an object address)."""
+def _stable_text(obj, names: dict | None = None) -> str | None:
+    """A text of `obj` that is the same in every process, or None (an object address).
+    `names`: {a function's repr: its stable name} to substitute first (`_own_functions`)."""
     text = repr(obj)
+    for old, new in (names or {}).items():
+        text = text.replace(old, new)
     return None if _ADDRESS.search(text) else text
 
 
+def _own_functions(obj, found: dict | None = None, depth: int = 0) -> dict:
+    """{repr: stable name} of the module-level functions of bsfs_jax in `obj` (a static
+    part: its leaves, and the fields of the equinox Modules and dataclasses in it, where
+    a sweep problem keeps its vector field). Their code is in the key's digest of the
+    package, so the name is enough; any other function keeps its address and the program
+    is not kept."""
+    found = {} if found is None else found
+    if depth > 8:
+        return found
+    if inspect.isfunction(obj):
+        mod, name = obj.__module__ or "", obj.__qualname__
+        if (mod == "bsfs_jax" or mod.startswith("bsfs_jax.")) and "<" not in name \
+                and getattr(sys.modules.get(mod), name, None) is obj:
+            found[repr(obj)] = f"<function {mod}.{name}>"
+    elif isinstance(obj, list | tuple):
+        for x in obj:
+            _own_functions(x, found, depth + 1)
+    elif isinstance(obj, dict):
+        for x in obj.values():
+            _own_functions(x, found, depth + 1)
+    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        for f in dataclasses.fields(obj):
+            _own_functions(getattr(obj, f.name, None), found, depth + 1)
+    return found
+
+
 def _key(fn, static, treedef, leaves) -> str | None:
-    static_text = _stable_text(jax.tree_util.tree_flatten(static))
-    tree_text = _stable_text(treedef)
+    names = _own_functions(static)
+    static_text = _stable_text(jax.tree_util.tree_flatten(static), names)
+    tree_text = _stable_text(treedef, names)
     if static_text is None or tree_text is None:
         return None
     package = fn.__module__.split(".")[0]

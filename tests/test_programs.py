@@ -137,3 +137,23 @@ def test_call_before_any_hand_off_does_not_wait_forever(cache_dir):
 def test_prefetch_without_cache_dir_does_nothing(monkeypatch):
     monkeypatch.setattr(_programs, "_program_dir", lambda: None)
     assert not _poly.prefetch(np.ones(2), {"w": np.ones(2)}, 1)
+
+
+def test_static_functions_of_bsfs_jax_are_named_others_are_not_kept():
+    # A sweep's vector field is a static argument: a module-level function of bsfs_jax is
+    # keyed by its name (its code is in the key's digest of the package), any other
+    # function keeps its address in the text, so its programs are never kept (a user's
+    # edited function must not find a stale program).
+    from bsfs_jax.model import kernel_vector_field, vector_field
+
+    def mine(t, y, args):
+        return y
+
+    x = np.ones(3)
+    leaves, treedef = jax.tree_util.tree_flatten(((x,), {}))
+    key = _programs._key(_poly.__wrapped__, ((vector_field, 2), {}), treedef, leaves)
+    assert key is not None
+    assert key == _programs._key(_poly.__wrapped__, ((vector_field, 2), {}), treedef, leaves)
+    assert key != _programs._key(_poly.__wrapped__, ((kernel_vector_field, 2), {}), treedef,
+                                 leaves)
+    assert _programs._key(_poly.__wrapped__, ((mine, 2), {}), treedef, leaves) is None

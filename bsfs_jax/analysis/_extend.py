@@ -4,11 +4,11 @@ per-period tangent growth (Benettin) and a few samples per period for a spectrum
 
 import dataclasses
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._programs import cached_jit
 from ..solvers import RESULTS, SolverSettings, result_code
 from ._lyapunov import benettin_steps
 
@@ -26,7 +26,7 @@ class Block:
     steps: object
 
 
-@eqx.filter_jit
+@cached_jit
 def _block(vector_field, setup, data, values, y, v, periods: int, spp: int,
            settings: SolverSettings):
     def one(value, y0, v0):

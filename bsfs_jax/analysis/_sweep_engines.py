@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._programs import cached_jit
 from ..solvers import integrate, integrate_lanes, result_code
 from ._sweep_point import _point, _reduce
 from ._sweep_problem import OK, SweepConfig
@@ -151,7 +152,7 @@ def _map_points(problem, values, y0s, n_transient, cfg: SweepConfig):
     return jax.lax.map(one, xs, batch_size=batch)
 
 
-@eqx.filter_jit
+@cached_jit
 def _cold_chunk(problem, values, y0s, n_transient, cfg: SweepConfig, mesh):
     """One chunk of cold points (see `_map_points`), sharded over `mesh` if given."""
     if mesh is None:

@@ -14,12 +14,14 @@ stroboscopic points o_1..o_max (to find the minimal period) and its samples over
 (for the amplitude).
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import prefetch_jit
+from .._programs import cached_jit, prefetch_jit
 from ._integrate import SolverSettings, integrate
 from ._results import RESULTS
 from ._shooting import Scaled, _Variational
@@ -120,14 +122,17 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
                       jnp.max(jnp.abs(z - z0)), jac + eye)
 
 
-@eqx.filter_jit
+@cached_jit
 def _check_batch(vector_field, setup, data, values, y_guess, scale, n, tol, max_steps,
                  max_period, spp, settings):
     def one(v, y, s, nn):
         return _check_one(vector_field, setup, data, v, y, s, nn, tol, max_steps,
                           max_period, spp, settings)
 
-    return jax.vmap(one)(values, y_guess, scale, n)
+    out = jax.vmap(one)(values, y_guess, scale, n)
+    # A tuple of arrays, not the Module: the program is kept across processes
+    # (`cached_jit`, `jax.export` writes tuples of arrays).
+    return tuple(getattr(out, f.name) for f in dataclasses.fields(OrbitCheck))
 
 
 _PREFETCHED: dict = {}  # ids of (vector field, setup), batch, states -> future program
@@ -151,8 +156,11 @@ def prefetch_check_orbits(vector_field, setup, data, batch: int, n_states: int, 
         return
     dummy = _args(np.ones(batch), np.ones((batch, n_states)), np.ones((batch, n_states)),
                   np.ones(batch, int), tol, max_steps, max_period, samples_per_period)
-    _PREFETCHED[key] = prefetch_jit(_check_batch, vector_field, setup, data, *dummy[:4],
-                                    *dummy[4:], settings)
+    args = (vector_field, setup, data, *dummy, settings)
+    # A kept program (a vector field of bsfs_jax) waits in `cached_jit`'s own queue; any
+    # other is compiled by jit and waited for here (`check_orbits`).
+    if not _check_batch.prefetch_now(*args):
+        _PREFETCHED[key] = prefetch_jit(_check_batch.plain, *args)
 
 
 def check_orbits(vector_field, setup, data, values, y_guess, scale, n, *, tol: float = 1e-6,
@@ -175,4 +183,4 @@ def check_orbits(vector_field, setup, data, values, y_guess, scale, n, *, tol: f
             pending.result()
         except Exception:  # noqa: BLE001 - compiled by the call below instead
             pass
-    return _check_batch(vector_field, setup, data, *args, settings)
+    return OrbitCheck(*_check_batch(vector_field, setup, data, *args, settings))
