@@ -127,9 +127,19 @@ def _folds(branch):
 def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     import jax.numpy as jnp
 
-    from bsfs_jax.design import point_hint
+    from bsfs_jax.design import peak_hint_layout, point_hint
 
-    hint, branch = locate_peak(ident.params_at(ident.theta), force, start, stop, settings)
+    params = ident.params_at(ident.theta)
+    theta = jnp.asarray(ident.theta, float)
+    # Where the curve is continued by shooting its peak's layout is known before the
+    # search: the peak frequency's gradient program (the forecast's largest) compiles on
+    # the second core while the curve is continued.
+    layout = peak_hint_layout(params, force, settings) if settings.frc_method == "shooting" \
+        else None
+    if layout is not None:
+        _peak_frequency_gradient.prefetch_now(ident.coordinates, theta,
+                                              jnp.asarray(force, float), layout)
+    hint, branch = locate_peak(params, force, start, stop, settings)
     shooting = type(branch.method).__name__ == "Shooting"
     # The probes are continued by the method that served the estimate (no failed
     # harmonic-balance attempt first where it fell back to shooting).
@@ -156,8 +166,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
         read[(i, sgn)] = {name: None if br is None else _read(name, br)
                           for name, *_ in specs}
     out = []
-    grads = _frc_gradients(ident.coordinates, jnp.asarray(ident.theta, float),
-                           jnp.asarray(force, float), specs)
+    grads = _frc_gradients(ident.coordinates, theta, jnp.asarray(force, float), specs)
     for name, unit, scale, h in specs:
         value = _read(name, branch)
         grad = grads[name]

@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     from ._orbit import frc_point_values as frc_point_values
     from ._orbit import locate_frc_peak as locate_frc_peak
     from ._orbit import opens_joint as opens_joint
+    from ._orbit import peak_hint_layout as peak_hint_layout
     from ._orbit import peak_orbit_samples as peak_orbit_samples
     from ._orbit import periodic_orbit as periodic_orbit
     from ._orbit import point_hint as point_hint
@@ -96,6 +97,7 @@ _LAZY = {
     "opens_joint": "._orbit",
     "peak_orbit_samples": "._orbit",
     "periodic_orbit": "._orbit",
+    "peak_hint_layout": "._orbit",
     "point_hint": "._orbit",
     "DEFAULT_FORCE_N": "._catalogue",
     "DEFAULT_FREQUENCY_HZ": "._catalogue",
