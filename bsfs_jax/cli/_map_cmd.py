@@ -20,6 +20,9 @@ MAX_NUM = 10**4
 #: units long: with 10 x ds the README's 16 x 8 map ran out of its 200 points before the
 #: end of the band in every row (and drew no fold curve); with 100 x ds the rows reach it.
 DS_MAX_FACTOR = 100
+#: Regula falsi iterations per event of a row continuation: with the longer steps a fold's
+#: bracket is wider, and 14 left 4 of the example's 16 folds bracketed, not located.
+LOCATE_ITERS = 40
 MAX_POINTS = 10**6
 MAX_SAMPLES = 10**9
 
@@ -233,7 +236,7 @@ def run(args) -> int:
                 lambda method: continue_orbits(family, guess, lo, hi, method=method,
                                                ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
                                                max_points=args.max_points,
-                                               amplitude_index=2),
+                                               amplitude_index=2, locate_iters=LOCATE_ITERS),
                 args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol),
                 Shooting(), args.hb_tol)
             for w in why:
