@@ -25,9 +25,10 @@ A stale or unreadable file is exported again and replaced (written atomically).
 
 `cached_jit(fn, fast_compile=True)` compiles the kept program with XLA's backend (LLVM)
 optimisation at level 1 instead of 2: for a large program that runs for a fraction of a
-second (the identification's solve and branch check) the code is as fast and XLA's
-compilation about a third shorter. The results are the same: neither level reorders
-floating-point arithmetic (no fast-math). The plain `filter_jit` path compiles as usual.
+second (the identification's solve and branch check) XLA's compilation is about 15 %
+shorter (6.4 -> 5.4 s and 4.8 -> 4.1 s) and the run no slower. The results agree with
+level 2's to rounding (an identification's report to 1e-14 relative). The plain
+`filter_jit` path compiles as usual.
 """
 
 from __future__ import annotations
@@ -213,8 +214,10 @@ def _worker(jobs: queue.SimpleQueue) -> None:
                 future.set_exception(exc)
 
 
-def _in_background(job) -> Future:
-    """Run `job` on the one prefetch thread (a daemon: an exit never waits for it)."""
+def in_background(job) -> Future:
+    """Run `job()` (typically: build arguments, then `jitted.lower(...).compile()`) on the
+    one prefetch thread, after any job queued before it; the future holds its result. The
+    thread is a daemon: an exit never waits for it."""
     global _queue
     if _queue is None:
         _queue = queue.SimpleQueue()
@@ -225,10 +228,14 @@ def _in_background(job) -> Future:
     return future
 
 
-def in_background(job) -> Future:
-    """Run `job()` (typically: build arguments, then `jitted.lower(...).compile()`) on the
-    prefetch thread, after any prefetch queued before it; the future holds its result."""
-    return _in_background(job)
+def settle(future: Future | None) -> None:
+    """Wait for a prefetch (`in_background`, `prefetch_jit`) before the call that uses its
+    program; a failed one is ignored (the call then compiles the program itself)."""
+    if future is not None:
+        try:
+            future.result()
+        except Exception as exc:  # noqa: BLE001 - the call compiles it instead
+            _log.debug("prefetch failed: %r", exc)
 
 
 def prefetch_jit(jitted, *args, **kwargs) -> Future:
@@ -238,7 +245,7 @@ def prefetch_jit(jitted, *args, **kwargs) -> Future:
     the returned future before that call (else both would compile it). For a program that
     the main thread needs only after other work (an integration running, another program
     compiling): its tracing then runs on the second core."""
-    return _in_background(lambda: jitted.lower(*args, **kwargs).compile())
+    return in_background(lambda: jitted.lower(*args, **kwargs).compile())
 
 
 def cached_jit(fn=None, *, fast_compile: bool = False):
@@ -332,7 +339,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             caller.lower(*leaves).compile()  # the call's own executable (jit's cache)
             return caller
 
-        _pending[key] = _in_background(job)
+        _pending[key] = in_background(job)
         return True
 
     call.plain = jitted

@@ -134,8 +134,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     # Where the curve is continued by shooting its peak's layout is known before the
     # search: the peak frequency's gradient program (the forecast's largest) compiles on
     # the second core while the curve is continued.
-    layout = peak_hint_layout(params, force, settings) if settings.frc_method == "shooting" \
-        else None
+    layout = peak_hint_layout(params, force, settings, start_hz=start, stop_hz=stop)
     if layout is not None:
         _peak_frequency_gradient.prefetch_now(ident.coordinates, theta,
                                               jnp.asarray(force, float), layout)

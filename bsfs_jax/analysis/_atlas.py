@@ -303,11 +303,9 @@ def _run_row(problem, x, config, verify, folder, shard):
     return {k: np.asarray(v)[0] for k, v in verdicts.items() if k in VERDICT_FIELDS}
 
 
-def _run_grid(problems, x, config, verify, folder, shard, progress, ckpt, prints) -> dict:
-    """{row: verdicts} of the rows not yet checkpointed, by one sweep of all their points;
-    empty where fewer than two rows are left or the rows cannot be stacked."""
-    pending = [j for j in range(len(problems))
-               if (d := ckpt.load(j)) is None or str(d.get("fingerprint")) != prints[j]]
+def _run_grid(problems, x, config, verify, folder, shard, progress, prints, pending) -> dict:
+    """{row: verdicts} of the rows `pending` (not yet checkpointed), by one sweep of all
+    their points; empty where fewer than two rows are left or they cannot be stacked."""
     problem = grid_problem([problems[j] for j in pending], x) if len(pending) > 1 else None
     if problem is None:
         return {}
@@ -367,14 +365,16 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
     from tqdm.auto import tqdm
 
     rows, bifs, computed = [], [], 0
-    grid = {}
-    if batch == "grid" or (batch == "auto" and p0.resolved_engine(config) == "kernel"):
-        grid = _run_grid(problems, x, config, verify, folder, shard, progress, ckpt, prints)
-    todo = [j for j in range(y.size) if not _row_done(ckpt.load(j), prints[j])]
+    saved = [ckpt.load(j) for j in range(y.size)]  # finished rows (a resumed run)
+    todo = [j for j in range(y.size) if not _row_done(saved[j], prints[j])]
     with _rows_in_background(row_bifurcations, y, todo) as found_later:
+        grid = {}
+        if batch == "grid" or (batch == "auto" and p0.resolved_engine(config) == "kernel"):
+            grid = _run_grid(problems, x, config, verify, folder, shard, progress, prints,
+                             todo)
         for j in tqdm(range(y.size), unit="row", disable=not progress or bool(grid),
                       desc=f"atlas {y_name}"):
-            data = ckpt.load(j)
+            data = saved[j]
             if not _row_done(data, prints[j]):
                 computed += 1
                 sub = None if folder is None else folder / f"row_{j:04d}"

@@ -151,6 +151,7 @@ def _cross_check_folds(family, branch, method, settings, args):
 def run_continue(args) -> int:
     import bsfs_jax
 
+    from .._programs import settle
     from ..machine import bsfs_family, simulate
     from ..params import params_summary
     from ..plotting import plot_continuation
@@ -197,16 +198,9 @@ def run_continue(args) -> int:
         args.method == "hb" and args.no_cross_check) else prefetch_corrector(
             family, family.vector_field, shooting, guess, args.start, amplitude_index=2)
 
-    def wait():
-        if pending is not None:
-            try:
-                pending.result()
-            except Exception:  # noqa: BLE001 - compiled when it is called instead
-                pass
-
     def run(method):
         if method is shooting:
-            wait()
+            settle(pending)
         print(f"continuing from {args.start:g} to {args.stop:g} Hz ({method.name}) ...",
               flush=True)
         return continue_orbits(family, guess, args.start, args.stop, method=method,
@@ -220,7 +214,7 @@ def run_continue(args) -> int:
     primary = branch.method
     other = shooting if isinstance(primary, HarmonicBalance) else HarmonicBalance(
         harmonics=max(harmonics, 16), error_tol=args.hb_tol)
-    wait()
+    settle(pending)
     checks = [] if args.no_cross_check else _cross_check_folds(family, branch, other,
                                                                settings, args)
 

@@ -162,19 +162,35 @@ class PeakHint(eqx.Module):
     method: object = eqx.field(static=True)
 
 
-def peak_hint_layout(params, force_n, settings: OrbitSettings):
-    """A `PeakHint` laid out as `locate_frc_peak(params, force_n, settings)` will return
-    it (the values mean nothing), where that is known before the search: the FRC is
-    continued by shooting (`frc_method` "shooting", or "auto" where the force opens a
-    joint in the band, as `locate_frc_peak` decides). None for harmonic balance, whose
-    harmonic count the search finds. For compiling the peak's programs while the search
-    runs (`design.prefetch_programs`)."""
-    if settings.frc_method == "auto":
-        f1 = float(_first_frequency(params))
-        if not opens_joint(params, force_n, settings.frc_band[0] * f1,
-                           settings.frc_band[1] * f1):
-            return None
-    elif settings.frc_method != "shooting":
+def _frc_band(params, settings: OrbitSettings, start_hz=None, stop_hz=None):
+    """(lo, hi) [Hz] of the FRC-peak search: `settings.frc_band` x f1, or start/stop."""
+    if start_hz is not None and stop_hz is not None:
+        return float(start_hz), float(stop_hz)
+    f1 = float(_first_frequency(params))
+    return (settings.frc_band[0] * f1 if start_hz is None else float(start_hz),
+            settings.frc_band[1] * f1 if stop_hz is None else float(stop_hz))
+
+
+def _frc_settings(params, force_n, settings: OrbitSettings, lo, hi) -> OrbitSettings:
+    """`settings` with "auto" resolved to "shooting" where the force opens a joint in
+    [lo, hi]: the contact force is only C^1 there and harmonic balance converges
+    algebraically; "auto" would climb to frc_max_harmonics, fail its tolerance and continue
+    by shooting anyway (on the default drive at 100 N: four harmonic counts compiled and
+    run, about 12 s)."""
+    if settings.frc_method == "auto" and opens_joint(params, force_n, lo, hi):
+        return dataclasses.replace(settings, frc_method="shooting")
+    return settings
+
+
+def peak_hint_layout(params, force_n, settings: OrbitSettings, *, start_hz=None,
+                     stop_hz=None):
+    """A `PeakHint` laid out as `locate_frc_peak(params, force_n, settings, start_hz=...,
+    stop_hz=...)` will return it (the values mean nothing), where that is known before the
+    search: the FRC is continued by shooting (`_frc_settings`, the same decision). None
+    for harmonic balance, whose harmonic count the search finds. For compiling the peak's
+    programs while the search runs (`design.prefetch_programs`, the forecast)."""
+    lo, hi = _frc_band(params, settings, start_hz, stop_hz)
+    if _frc_settings(params, force_n, settings, lo, hi).frc_method != "shooting":
         return None
     d = 6  # the drive's state: three displacements, three velocities
     n = d + 1  # single shooting's unknowns and the frequency
@@ -187,17 +203,10 @@ def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
     """(PeakHint, Branch): the FRC peak over `settings.frc_band` x f1 (or start/stop).
 
     Raises `SolverError` when the amplitude has no maximum inside the interval."""
-    f1 = float(_first_frequency(params))
-    lo = settings.frc_band[0] * f1 if start_hz is None else float(start_hz)
-    hi = settings.frc_band[1] * f1 if stop_hz is None else float(stop_hz)
+    lo, hi = _frc_band(params, settings, start_hz, stop_hz)
     family = bsfs_family(params, force_n)
     guess = _linear_start(family, lo)
-    if settings.frc_method == "auto" and opens_joint(params, force_n, lo, hi):
-        # A joint loses contact near the peak: the contact force is only C^1 there and
-        # harmonic balance converges algebraically; "auto" would climb to
-        # frc_max_harmonics, fail its tolerance and continue by shooting anyway (on the
-        # default drive at 100 N: four harmonic counts compiled and run, about 12 s).
-        settings = dataclasses.replace(settings, frc_method="shooting")
+    settings = _frc_settings(params, force_n, settings, lo, hi)
 
     def run(method):
         return continue_orbits(family, guess, lo, hi, method=method, ds=settings.frc_ds,

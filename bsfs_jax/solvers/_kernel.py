@@ -135,7 +135,8 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
     these arguments will call; its first call then finds it in jit's cache. For a
     continuation that follows the current one (`bsfs continue`'s cross-check of the folds
     by the other method): its tracing runs on the second core while this thread computes.
-    Returns the future; wait for it before that continuation (else both compile it)."""
+    Returns the future; wait for it before that continuation (`_programs.settle`; else
+    both compile it)."""
     from .._programs import in_background
     from ._orbit import _init_core
     from ._shooting import default_scale, float_leaves_to_arrays

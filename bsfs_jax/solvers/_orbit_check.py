@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import cached_jit, prefetch_jit
+from .._programs import cached_jit, prefetch_jit, settle
 from ._integrate import SolverSettings, integrate
 from ._results import RESULTS
 from ._shooting import Scaled, _Variational
@@ -177,10 +177,6 @@ def check_orbits(vector_field, setup, data, values, y_guess, scale, n, *, tol: f
     the program a second time.
     """
     args = _args(values, y_guess, scale, n, tol, max_steps, max_period, samples_per_period)
-    pending = _PREFETCHED.pop((id(vector_field), id(setup), *np.shape(y_guess)), None)
-    if pending is not None:
-        try:  # the prefetched program (same layout: found in jit's cache)
-            pending.result()
-        except Exception:  # noqa: BLE001 - compiled by the call below instead
-            pass
+    # a prefetched program of this layout is then found in jit's cache
+    settle(_PREFETCHED.pop((id(vector_field), id(setup), *np.shape(y_guess)), None))
     return OrbitCheck(*_check_batch(vector_field, setup, data, *args, settings))
