@@ -6,7 +6,6 @@ import dataclasses
 import time
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 import bsfs_jax
@@ -181,7 +180,7 @@ def prefetch_check(problem: Problem) -> None:
     from ._model import compliance_and_gradient, predictions
     from ._orbit_model import prefetch_branches
 
-    theta = jnp.zeros(problem.n_params)
+    theta = np.zeros(problem.n_params)  # numpy: no compiled program to fill it
     for _, args in _branch_groups(problem, theta):
         prefetch_branches(*args, harmonics=problem.structure.orbit_harmonics)
     predictions.prefetch(theta, problem.fit_data, problem.structure, False)

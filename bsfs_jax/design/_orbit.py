@@ -194,7 +194,9 @@ def peak_hint_layout(params, force_n, settings: OrbitSettings, *, start_hz=None,
         return None
     d = 6  # the drive's state: three displacements, three velocities
     n = d + 1  # single shooting's unknowns and the frequency
-    return PeakHint(jnp.zeros(n), jnp.zeros(n), jnp.zeros((n, n)), jnp.ones(d),
+    # numpy arrays (no compiled program to fill them); the two scalars weakly typed, as
+    # the located hint's, which come from Python floats
+    return PeakHint(np.zeros(n), np.zeros(n), np.zeros((n, n)), np.ones(d),
                     jnp.asarray(1.0), jnp.asarray(1.0), Shooting())
 
 
