@@ -48,6 +48,8 @@ def main():
     p.add_argument("--budget", type=float, default=420.0)
     p.add_argument("--kernel-fast", type=int, default=1,
                    help="SweepConfig.kernel_fast for the kernel engine (1 or 0)")
+    p.add_argument("--unroll", type=int, default=1,
+                   help="SweepConfig.kernel_unroll for the kernel engine")
     p.add_argument("--variants", type=ints, default=[],
                    help="instead of the cases: time the kernel alone (integrate_lanes) at "
                    "these point counts for each block size in VARIANTS")
@@ -68,7 +70,7 @@ def main():
 
     dev = jax.devices()[0]
     info = {"case": "machine", "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
-            "kernel_fast": bool(args.kernel_fast),
+            "kernel_fast": bool(args.kernel_fast), "kernel_unroll": args.unroll,
             "device": str(getattr(dev, "device_kind", dev)), "backend": jax.default_backend(),
             "jax": jax.__version__, "cpu_threads": os.cpu_count()}
 
@@ -87,7 +89,8 @@ def main():
     def config(n, engine, **kw):
         base = dict(transient_periods=n_tr, periods=n_samp, samples_per_period=1,
                     lyapunov=False, batch_size=n, chunk_size=n, engine=engine,
-                    settings=settings, kernel_fast=bool(args.kernel_fast))
+                    settings=settings, kernel_fast=bool(args.kernel_fast),
+                    kernel_unroll=args.unroll)
         base.update(kw)
         return SweepConfig(**base)
 

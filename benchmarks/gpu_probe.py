@@ -17,6 +17,9 @@ Variants (all the same equations; "fast" = the kernel's controller arithmetic,
   (64 x^3 (1 - x)^3 of the phase fraction x, no transcendental; measures the sine), fast;
 - `linear`: a linear 3-DOF oscillator (the loop's own cost without the force law), fast.
 
+A variant may carry `@U`: `integrate_lanes(unroll=U)`, U steps per test of the loop's
+condition (`kernel@4`); U = 1 otherwise.
+
 Usage: python benchmarks/gpu_probe.py --out DIR [--points 240] [--periods 20]
        [--variants kernel,kernel_exactctl,exact,mass_divide,nosine,linear]
 Each result is one JSON line in DIR/probe.jsonl, printed as it comes.
@@ -30,7 +33,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))
+# BSFS_PROBE_ROOT: another copy of the package (say, the commit before) to time beside.
+sys.path.insert(0, os.environ.get("BSFS_PROBE_ROOT") or str(HERE.parent))
 
 
 def _fields():
@@ -62,8 +66,9 @@ def _fields():
         f_b = k * y[0] + c[0] * y[3]
         f_s = system.screw_stiffness * (y[1] - y[0]) + c[1] * (y[4] - y[3])
         f_n = k * (y[2] - y[1]) + c[2] * (y[5] - y[4])
+        force = forcing.fast(t) if hasattr(forcing, "fast") else forcing(t)
         return (y[3], y[4], y[5], (f_s - f_b) / m[0], (f_n - f_s) / m[1],
-                (forcing(t) - f_n) / m[2])
+                (force - f_n) / m[2])
 
     return {"kernel": (kernel_vector_field, True), "kernel_exactctl": (kernel_vector_field, False),
             "exact": (vector_field_components, False),
@@ -110,15 +115,18 @@ def main():
     freqs = jnp.linspace(100.0, 4000.0, n)
     fields = _fields()
     reference = None
-    for name in args.variants.split(","):
+    for spec in args.variants.split(","):
+        name, _, unroll = spec.partition("@")
+        unroll = int(unroll or 1)
         field, fast = fields[name]
+        extra = {"unroll": unroll} if unroll != 1 else {}
 
-        def run(v, field=field, fast=fast):
+        def run(v, field=field, fast=fast, extra=extra):
             a, per = jax.vmap(lambda x: problem.setup(problem.data, x))(v)
             return integrate_lanes(field, jnp.zeros((n, 6)), a, args.periods * per, per,
                                    n_samples=8, samples_per_period=1, rtol=1e-8, atol=1e-12,
                                    max_steps=4_000_000, block=args.block,
-                                   num_warps=args.warps, fast=fast)
+                                   num_warps=args.warps, fast=fast, **extra)
 
         fn = jax.jit(run)
         t = time.perf_counter()
@@ -131,7 +139,8 @@ def main():
             times.append(time.perf_counter() - t)
         run_s = float(np.median(times))
         steps = np.asarray(res[4])
-        row = {"case": "variant", "name": name, "fast": fast, "points": n, "block": args.block,
+        row = {"case": "variant", "name": name, "unroll": unroll, "fast": fast, "points": n,
+               "root": os.environ.get("BSFS_PROBE_ROOT", "this tree"), "block": args.block,
                "warps": args.warps, "first_call_s": round(first, 3), "run_s": run_s,
                "steps_max": int(steps.max()), "failed": int(np.sum(np.asarray(res[3]) != 0)),
                "us_per_step": run_s / max(int(steps.max()), 1) * 1e6}

@@ -53,3 +53,27 @@ def solve_3x3(a, b):
     see `cofactors_3x3`."""
     c, det = cofactors_3x3(a)
     return (c.T @ b) / det
+
+
+# Taylor coefficients of sin(z) = z (1 + z^2 (c1 + z^2 (c2 + ...))), (-1)^k / (2k + 1)!,
+# enough terms for |z| <= pi / 2 to a few ulp (the first one left out: 1.2e-18).
+_SIN_TAYLOR = tuple((-1.0) ** k / float(np.prod(np.arange(1, 2 * k + 2, dtype=float)))
+                    for k in range(1, 12))
+
+
+def sin_turns(x):
+    """sin(2 pi x) for float64 `x` in turns, without a branch: the argument reduced to
+    [-1/4, 1/4] turn by exact subtractions, then an odd Taylor polynomial (a few ulp).
+
+    For the per-lane GPU kernel, where the library sine's slow-path branch for large
+    arguments splits a step into short basic blocks; a sinusoid's phase in turns (f t) is
+    reduced exactly, where 2 pi f t already carries its own rounding."""
+    r = x - jnp.floor(x + 0.5)  # [-1/2, 1/2]
+    r = jnp.where(r > 0.25, 0.5 - r, jnp.where(r < -0.25, -0.5 - r, r))  # [-1/4, 1/4]
+    z = (2.0 * np.pi) * r
+    z2 = z * z
+    poly = _SIN_TAYLOR[-1]
+    for c in _SIN_TAYLOR[-2::-1]:
+        poly = c + z2 * poly
+    return z + z * (z2 * poly)
+

@@ -82,15 +82,29 @@ def test_kernel_field_and_controller_are_the_fused_loops_to_rounding(problem):
     rng = np.random.default_rng(7)
     ys = rng.normal(size=(2000, 6)) * np.array([2e-6, 2e-6, 4e-6, 0.05, 0.05, 0.1])
     t = jnp.asarray(rng.uniform(0.0, 1.0, 2000))
-    args, _ = problem.setup(problem.data, 800.0)
+    (system, forcing), _ = problem.setup(problem.data, 800.0)
+    # The force law: the same forcing on both sides (its fast form is checked below).
+    args = (system, lambda t: forcing(t))
     exact = np.stack(vector_field_components(t, tuple(jnp.asarray(ys).T), args))
     fast = np.stack(kernel_vector_field(t, tuple(jnp.asarray(ys).T), args))
     scale = np.max(np.abs(exact), axis=1, keepdims=True)
     assert np.max(np.abs(fast - exact) / scale) < 1e-13
+    # The forcing's branch-free sine: a few ulp of the amplitude from the sine of its own
+    # float64 phase in turns (f t + phase / 2 pi) in extended precision, and within the
+    # rounding of the argument (f t up to 2400 turns) of jnp.sin's form.
+    ts = np.concatenate([np.asarray(t), rng.uniform(0.0, 3.0, 2000)])
+    turns = float(forcing.frequency) * ts + float(forcing.phase) * (0.5 / np.pi)
+    ref = float(forcing.amplitude) * np.sin(2 * np.pi * np.mod(turns.astype(np.longdouble), 1))
+    amp = float(forcing.amplitude)
+    fast_force = np.asarray(forcing.fast(jnp.asarray(ts)))
+    assert np.max(np.abs(fast_force - ref)) / amp < 1e-15
+    assert np.max(np.abs(fast_force - np.asarray(forcing(jnp.asarray(ts))))) / amp < 1e-11
+    # The controller: the fast form takes the squared norm; its float32 power is within
+    # 1e-6 of the next step over 28 decades of the error norm.
     en = jnp.logspace(-14.0, 14.0, 2001)
-    step = lambda fast: np.asarray(controller(en, jnp.isfinite(en), 1.0, 1.0, False,
-                                              fast)[1])
-    assert np.max(np.abs(step(True) / step(False) - 1.0)) < 1e-6
+    step = lambda e, fast: np.asarray(controller(e, jnp.isfinite(e), 1.0, 1.0, False,
+                                                 fast)[1])
+    assert np.max(np.abs(step(en * en, True) / step(en, False) - 1.0)) < 1e-6
 
 
 def _oscillator(t, y, args):
@@ -118,6 +132,22 @@ def test_kernel_follows_the_closed_form_steady_state_of_a_linear_oscillator():
     x = jnp.real(h[:, None] * jnp.exp(1j * omega[:, None] * t))
     np.testing.assert_allclose(np.asarray(samples[:, :, 0]), np.asarray(x),
                                atol=1e-7 * float(jnp.max(jnp.abs(h))))
+
+
+def test_kernel_unrolled_steps_give_the_same_lanes_bit_for_bit(problem):
+    """`unroll` steps per test of the loop's condition: lanes that finish inside an
+    unrolled body stay put, so every output equals the plain loop's exactly (fast field
+    and controller, lanes of very different step counts in one block)."""
+    freqs = np.array([900.0, 1500.0, 2500.0, 4000.0, 3000.0])
+    args, periods = _lanes_setup(problem, freqs)
+    run = lambda unroll: integrate_lanes(
+        kernel_vector_field, jnp.zeros((5, 6)), args, 5 * periods, periods, n_samples=8,
+        samples_per_period=4, max_steps=10**6, block=4, backend="interpret", fast=True,
+        unroll=unroll, **TOL)
+    one, three = run(1), run(3)
+    assert np.all(np.asarray(one[3]) == 0) and len(set(np.asarray(one[4]).tolist())) == 5
+    for a, b in zip(one, three):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_kernel_reports_failures_per_lane_and_leaves_the_others_alone():

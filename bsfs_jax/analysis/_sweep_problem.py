@@ -45,6 +45,8 @@ class SweepConfig:
     - `kernel_fast`: kernel engine: the controller's arithmetic without float64 divisions
       and powers (`integrate_lanes(fast=True)`, the default); False repeats the fused
       loop's controller to the bit. The field is the problem's `component_field` either way.
+    - `kernel_unroll`: kernel engine: steps per test of the loop's block-wide condition
+      (`integrate_lanes(unroll=...)`; the same results for any value).
     - `max_slice_periods`: queue engine: at most this many periods per slice.
     - `settings`: `SolverSettings` (tolerances, max_steps, solver; default the fused
       Dormand-Prince 5(4) loop "dopri5-fused", or any diffrax solver name).
@@ -62,6 +64,7 @@ class SweepConfig:
     engine: str = "auto"
     kernel_block: int = 32
     kernel_fast: bool = True
+    kernel_unroll: int = 1
     max_slice_periods: int = 64
     # Sweeps are forward-only, so they default to the fused Dormand-Prince loop (about 3x
     # cheaper per step than diffrax's general loop here; cross-checked in tests/test_fused.py).
@@ -84,6 +87,9 @@ class SweepConfig:
                              f"{self.engine!r}")
         if int(self.kernel_block) < 1:
             raise ValueError(f"SweepConfig.kernel_block must be >= 1, got {self.kernel_block}")
+        if int(self.kernel_unroll) < 1:
+            raise ValueError(
+                f"SweepConfig.kernel_unroll must be >= 1, got {self.kernel_unroll}")
         if self.window not in ("hann", "rect"):
             raise ValueError(f"SweepConfig.window must be 'hann' or 'rect', got {self.window!r}")
 

@@ -62,9 +62,11 @@ def vector_field_components(t, y, args, fast=False):
     """The vector field on a tuple of the six state components, elementwise (each component
     any shape; `args`' leaves may be per-lane arrays, or tuples for vector fields): the
     form the per-lane integrator kernel (`solvers.integrate_lanes`) runs. `fast`: the
-    force law without divisions or square roots (see `physics.pair_force`)."""
+    force law without divisions or square roots (see `physics.pair_force`) and the
+    forcing's branch-free form where it has one (`Sinusoid.fast`)."""
     system, forcing = args
-    acc = _accelerations(system, y[0], y[1], y[2], y[3], y[4], y[5], forcing(t), fast)
+    force = forcing.fast(t) if fast and hasattr(forcing, "fast") else forcing(t)
+    acc = _accelerations(system, y[0], y[1], y[2], y[3], y[4], y[5], force, fast)
     return (y[3], y[4], y[5], *acc)
 
 

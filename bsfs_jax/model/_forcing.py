@@ -4,7 +4,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._numerics import float_array
+from .._numerics import float_array, sin_turns
 
 
 class Sinusoid(eqx.Module):
@@ -20,6 +20,12 @@ class Sinusoid(eqx.Module):
 
     def __call__(self, t):
         return self.amplitude * jnp.sin(2.0 * jnp.pi * self.frequency * t + self.phase)
+
+    def fast(self, t):
+        """The same force with a branch-free sine of the phase in turns (`sin_turns`, a
+        few ulp of the sine of f t + phase / 2 pi; from `__call__` by the rounding of the
+        argument): for the per-lane GPU kernel."""
+        return self.amplitude * sin_turns(self.frequency * t + self.phase * (0.5 / jnp.pi))
 
 
 class HarmonicForcing(eqx.Module):

@@ -50,13 +50,14 @@ def first_step(d0, d1, span):
 def controller(en, finite, h, h_eff, clipped, fast=False):
     """(accept, next step) of the I-controller from the error norm `en` of a step of
     length `h_eff` (`h` before clipping onto a save time); elementwise (shared with
-    `_lanes.py`). `fast`: the factor's power in float32 (about 1e-7 relative on the next
-    step size, which only the step sequence sees), for the GPU kernel, where a float64
-    power is a long software sequence."""
+    `_lanes.py`). `fast`: `en` is the squared norm (no square root taken) and the factor's
+    power is taken in float32 (about 1e-7 relative on the next step size, which only the
+    step sequence sees), for the GPU kernel, where a float64 square root or power is a
+    long software sequence."""
     accept = finite & (en <= 1.0)
     if fast:
-        e32 = jnp.clip(en, 1e-10, 1e30).astype(jnp.float32)
-        power = jnp.exp2(-0.2 * jnp.log2(e32)).astype(en.dtype)
+        e32 = jnp.clip(en, 1e-20, 1e30).astype(jnp.float32)
+        power = jnp.exp2(-0.1 * jnp.log2(e32)).astype(en.dtype)
     else:
         power = jnp.maximum(en, 1e-10) ** (-0.2)
     factor = jnp.where(finite, jnp.clip(0.9 * power, 0.2, 10.0), 0.2)

@@ -70,17 +70,18 @@ def _rms(xs):
 
 
 def _error_norm(err, y, y_new, rtol, atol, fast):
-    """RMS of err / (atol + rtol max(|y|, |y_new|)); `fast`: the quotients as products by
-    reciprocal square roots of the squared scales (a few ulp, no float64 division)."""
+    """RMS of err / (atol + rtol max(|y|, |y_new|)); `fast`: its square (no square root;
+    `controller(fast=True)` takes it so), the quotients as products by reciprocal square
+    roots of the squared scales (a few ulp, no float64 division)."""
     scales = [atol + rtol * jnp.maximum(jnp.abs(a), jnp.abs(b)) for a, b in zip(y, y_new)]
     if not fast:
         return _rms([e / sc for e, sc in zip(err, scales)])
     terms = [e * jax.lax.rsqrt(sc * sc) for e, sc in zip(err, scales)]
-    return jnp.sqrt(sum(x * x for x in terms) * (1.0 / len(terms)))
+    return sum(x * x for x in terms) * (1.0 / len(terms))
 
 
 def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, block, n_pad,
-            fast, p_ref, y0_ref, start_ref, end_ref, samples_ref, code_ref, steps_ref):
+            fast, unroll, p_ref, y0_ref, start_ref, end_ref, samples_ref, code_ref, steps_ref):
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
@@ -114,7 +115,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
     def cond(s):
         return jnp.max(s["active"].astype(jnp.int32)) > 0
 
-    def body(s):
+    def step(s):
         t, y, h, k1, act = s["t"], s["y"], s["h"], s["k1"], s["active"]
         recording = s["phase"] == 1
         target = jnp.where(recording, t_rec + period * (s["k"].astype(float) / spp), t_rec)
@@ -144,6 +145,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
         t_out = jnp.where(accept, t_new, t)
         y_out = tuple(jnp.where(accept, a, b) for a, b in zip(y_new, y))
         k1_out = tuple(jnp.where(accept, a, b) for a, b in zip(ks[6], k1))
+        # A lane reached its save time (the transient's end, or a sample's).
         hit = ok & reached
         # The transient ends: keep the state, restart the controller as a new run would.
         switch = hit & ~recording
@@ -151,6 +153,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
         save = hit & recording
         last = save & (s["k"] >= n_samples)
         active = ok & ~last
+        idx = (s["k"] - 1) * n_pad + lanes
 
         def restart():
             for c in range(n):
@@ -158,17 +161,18 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
             f_rec = f(t_out, y_out)
             return f_rec, restart_step(t_out, t_end, y_out, f_rec)
 
-        # Work that only some steps need sits in a `cond`, skipped where no lane of the
-        # block needs it, rather than computed and masked (8 % of a step on an H100).
-        f_rec, h_rec = jax.lax.cond(jnp.max(switch.astype(jnp.int32)) > 0, restart,
-                                    lambda: (k1_out, h_new))
-        idx = (s["k"] - 1) * n_pad + lanes
-
-        def store_samples():
+        def events():
             for c in range(n):
                 plgpu.store(samples_ref.at[c * n_samples * n_pad + idx], y_out[c], mask=save)
+            return jax.lax.cond(jnp.max(switch.astype(jnp.int32)) > 0, restart,
+                                lambda: (k1_out, h_new))
 
-        jax.lax.cond(jnp.max(save.astype(jnp.int32)) > 0, store_samples, lambda: None)
+        # Work that only some steps need sits in a `cond`, skipped where no lane of the
+        # block needs it, rather than computed and masked (8 % of a step on an H100); one
+        # block-wide test per step for both kinds of save time, the restart's own test
+        # only on those steps.
+        f_rec, h_rec = jax.lax.cond(jnp.max(hit.astype(jnp.int32)) > 0, events,
+                                    lambda: (k1_out, h_new))
         k_next = jnp.where(save, s["k"] + 1, s["k"])
         new = dict(
             t=t_out, y=y_out,
@@ -186,6 +190,13 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
         out["active"] = active
         return out
 
+    def body(s):
+        # `unroll` steps per test of the loop's condition: a step of a finished lane
+        # changes nothing, so the results are the same for any `unroll`.
+        for _ in range(unroll):
+            s = step(s)
+        return s
+
     s = jax.lax.while_loop(cond, body, state)
     for c in range(n):
         end_ref[pl.ds(c * n_pad + base, block)] = s["y"][c]
@@ -196,7 +207,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
 def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
                     samples_per_period: int, rtol: float, atol: float, max_steps: int,
                     block: int = 32, num_warps: int = 1, backend: str | None = None,
-                    fast: bool = False):
+                    fast: bool = False, unroll: int = 1):
     """Integrate N independent lanes of y' = field(t, y, args), each in its own loop.
 
     Lane i runs from t = 0 and state `y0[i]` to `t_record[i]` (its transient), then on over
@@ -212,10 +223,12 @@ def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
     - `rtol`, `atol`, `max_steps`: as `SolverSettings` (`max_steps` per run).
     - `block`, `num_warps`: lanes per program and the warps that run them (Triton).
     - `backend`: "triton" (GPU) or "interpret" (any device; slow); default by the device.
-    - `fast`: the error norm without float64 divisions and the controller's power in
-      float32 (`_fused.controller(fast=True)`): the same controller to about 1e-7 on each
-      step size, so the step sequence, not the accuracy, may differ from the fused loop's.
-      With `fast=False` and the same field the kernel repeats the fused loop step for step.
+    - `fast`: the error norm without float64 divisions or square root and the
+      controller's power in float32 (`_fused.controller(fast=True)`): the same controller
+      to about 1e-7 on each step size, so the step sequence, not the accuracy, may differ
+      from the fused loop's. With `fast=False` and the same field the kernel repeats the
+      fused loop step for step.
+    - `unroll`: steps per test of the loop's block-wide condition (the same results).
 
     Returns (start (N, n): the state at t_record, samples (N, n_samples, n), end (N, n),
     codes (N,) int32: `RESULTS` codes, 0 where successful; num_steps (N,) int32, both runs).
@@ -242,7 +255,8 @@ def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
     p = pad(p.T).T
     kernel = functools.partial(
         _kernel, field, treedef, tuple(layouts), n, int(n_samples), float(samples_per_period),
-        float(rtol), float(atol), int(max_steps), int(block), int(n_pad), bool(fast))
+        float(rtol), float(atol), int(max_steps), int(block), int(n_pad), bool(fast),
+        int(unroll))
     out_shape = (jax.ShapeDtypeStruct((n * n_pad,), float),
                  jax.ShapeDtypeStruct((n * n_pad,), float),
                  jax.ShapeDtypeStruct((n * n_samples * n_pad,), float),
