@@ -17,7 +17,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 RESULTS = HERE / "results"
-CLI = "import sys; from bsfs_jax.cli import main; sys.exit(main(sys.argv[1:]))"
+CLI = "from bsfs_jax.cli import run; run()"  # what the `bsfs` command runs
 STAT_KEYS = ("wall_s", "compile_s", "run_s", "compiles", "peak_rss_mb")
 
 

@@ -17,6 +17,7 @@ parameters are reported as not determined by the uncertainty analysis.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable
 
@@ -134,18 +135,51 @@ def start_metric(problem: Problem, spread: float = 0.3) -> np.ndarray:
             np.full(problem.n_params, spread))
 
 
+def _primes(d: int) -> list[int]:
+    out, k = [], 2
+    while len(out) < d:
+        if all(k % p for p in out if p * p <= k):
+            out.append(k)
+        k += 1
+    return out
+
+
+def halton(d: int, n: int, seed: int) -> np.ndarray:
+    """n points (n, d) of the scrambled Halton sequence in [0, 1)^d: dimension i the
+    radical inverse in the i-th prime base, each digit through its own random permutation
+    (Owen's scrambling, one permutation per digit down to 2^-54), drawn in order from
+    `numpy.random.default_rng(seed)`. The same points as `scipy.stats.qmc.Halton(d,
+    scramble=True, seed=seed).random(n)` to the bit (tested), without importing
+    scipy.stats (about a quarter of a second of every identification's start)."""
+    rng = np.random.default_rng(seed)
+    bases = _primes(d)
+    perms = []
+    for base in bases:
+        rows = np.repeat(np.arange(base)[None], math.ceil(54 / math.log2(base)) - 1, axis=0)
+        for row in rows:
+            rng.shuffle(row)
+        perms.append(rows)
+    out = np.zeros((n, d))
+    for i, (base, rows) in enumerate(zip(bases, perms)):
+        q, scale = np.arange(n), 1.0 / base
+        for row in rows:
+            out[:, i] += row[q % base] * scale
+            q, scale = q // base, scale / base
+    return out
+
+
 def start_points(problem: Problem, starts: int, seed: int, spread: float = 0.3):
     """Start 0 is the prior; the others spread quasi-randomly (a scrambled Halton sequence,
     seeded) over the prior's central 95 % in every fitted coordinate: the normal quantiles
     of 0.025 + 0.95 u times each prior sigma (+-`spread`-sigma quantiles without priors)."""
-    from scipy.stats import norm, qmc
+    from scipy.special import ndtri  # the normal quantile (scipy.stats' norm.ppf)
 
     sigma = start_metric(problem, spread)
     out = [np.zeros(problem.n_params)]
     n = max(1, starts) - 1
     if n:
-        u = qmc.Halton(d=problem.n_params, scramble=True, seed=seed).random(n)
-        out += list(norm.ppf(0.025 + 0.95 * u) * sigma)
+        u = halton(problem.n_params, n, seed)
+        out += list(ndtri(0.025 + 0.95 * u) * sigma)
     return out
 
 

@@ -76,14 +76,16 @@ def measurement_data(record):
 
 def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
              starts: int = 3, seed: int = 0, max_steps: int = 100, priors="default",
-             profile="auto") -> IdentificationResult:
+             profile="auto", on_models=None) -> IdentificationResult:
     """Load records (paths or loaded records), fit, and compute the uncertainty.
 
     `priors`: "default" (each parameter's default prior, see `FIT_PARAMETERS`), a dict
     {name: sigma} or None (maximum likelihood). `profile`: profile-likelihood intervals
     where the linearised ones are doubtful (True), never (False), or "auto": when every
     record uses a linear model (with periodic-orbit records each profile point costs a
-    re-fit of orbits; the report then says the check was skipped).
+    re-fit of orbits; the report then says the check was skipped). `on_models(problem)`:
+    called as `fit`'s, after this function has queued its own background compilations
+    (the CLI queues the loading of its figures' modules behind them).
     """
     require_x64("identification.identify")
     from ._load import load_records
@@ -97,8 +99,13 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     problem = Problem(data, prior, fit_names, model=model, priors=priors)
     # The model at the estimate (and its check) comes from the branch kernel below: its
     # fitted orbits are the model's, and no separate program solves them again.
+    def models_chosen(chosen):
+        prefetch_check(chosen)
+        if on_models is not None:
+            on_models(chosen)
+
     result = fit(problem, starts=starts, seed=seed, max_steps=max_steps, model_check=False,
-                 on_models=prefetch_check)
+                 on_models=models_chosen)
     result, branch = check_model(result)
     problem = result.problem  # the models as chosen at the estimate
     unc = uncertainty(result)

@@ -281,6 +281,28 @@ def test_modes_and_argument_errors_do_not_load_the_solvers(tmp_path):
     assert line == ["CODES [0, 1] HEAVY []"], out.stdout[-2000:] + out.stderr[-2000:]
 
 
+def test_bsfs_command_exits_at_once_with_its_output_and_exit_work_done(tmp_path):
+    """The console command (`cli.run`) ends the process without the interpreter's teardown:
+    its output arrives whole, the exit code is main's, and the CLI's exit work (the
+    benchmarks' compile statistics) is written; a user error exits 1 with its one line."""
+    import json
+    import subprocess
+    import sys
+
+    env = {**__import__("os").environ, "BSFS_CACHE_DIR": str(tmp_path / "cache"),
+           "BSFS_COMPILE_STATS": str(tmp_path / "stats.json")}
+    cmd = [sys.executable, "-c", "from bsfs_jax.cli import run; run()"]
+    ok = subprocess.run(cmd + ["modes", "--json"], capture_output=True, text=True, env=env,
+                        timeout=300)
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert json.loads(ok.stdout)  # the whole JSON document, flushed before the exit
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert set(stats) == {"compiles", "compile_s", "peak_rss_mb"} and stats["peak_rss_mb"] > 0
+    bad = subprocess.run(cmd + ["modes", "--speed", "-5"], capture_output=True, text=True,
+                         env=env, timeout=300)
+    assert bad.returncode == 1 and bad.stderr.count("\n") == 1 and "error" in bad.stderr
+
+
 def test_continue_starts_harmonic_balance_high_where_a_joint_opens():
     # Where the force opens a joint inside the interval (the linearised lift-off test of
     # the design metrics), hb starts at 64 harmonics; elsewhere, or when given, as asked.

@@ -37,10 +37,27 @@ def setup_jax() -> None:
         _record_compiles(os.environ["BSFS_COMPILE_STATS"])
 
 
+_EXIT_WORK: list = []
+
+
+def at_exit(fn) -> None:
+    """Run `fn()` when the process ends: by `atexit` for `main` called in a process, and
+    by `cli.run` (the `bsfs` command) before its immediate exit, which skips `atexit`."""
+    import atexit
+
+    _EXIT_WORK.append(fn)
+    atexit.register(fn)
+
+
+def run_exit_work() -> None:
+    """`cli.run`'s last step before `os._exit`: the `at_exit` work, latest first."""
+    while _EXIT_WORK:
+        _EXIT_WORK.pop()()
+
+
 def _record_compiles(path: str) -> None:
     """For the benchmarks: count XLA compilations and their seconds (jax's compile events)
     and write them, with the peak memory, to `path` (JSON) when the process exits."""
-    import atexit
     import json
     import resource
 
@@ -59,7 +76,7 @@ def _record_compiles(path: str) -> None:
             json.dump(dict(stats, peak_rss_mb=peak), fh)
 
     jax.monitoring.register_event_duration_secs_listener(on_event)
-    atexit.register(write)
+    at_exit(write)
 
 
 def add_params_args(parser) -> None:

@@ -1,5 +1,6 @@
 """`bsfs identify` and `bsfs plan-test` (parameter identification, issue 4)."""
 
+import importlib
 import sys
 import time
 
@@ -89,8 +90,6 @@ def _fit_names(text):
 def run_identify(args) -> int:
     import identification as idn
 
-    from ..plotting import correlation_figure, fit_figure
-
     prior = ui.load_params_from_args(args)
     names = _fit_names(args.fit)
     if args.no_priors and args.prior:
@@ -112,10 +111,19 @@ def run_identify(args) -> int:
               f"'{args.data}' ({len(records)} records)", file=sys.stderr)
     out = ui.out_dir(args.out)
     t0 = time.perf_counter()
+    # The figures' modules (matplotlib) load on the background thread while the fit's
+    # programs run, after the compilations the identification queues there: about 0.4 s
+    # of a warm run otherwise spent on the main thread before the fit.
+    from .._programs import in_background
+
+    def load_figure_modules(_problem):
+        in_background(lambda: importlib.import_module("bsfs_jax.plotting"))
+
     try:
         res = idn.identify(records, prior, names, model=args.model, starts=args.starts,
                            seed=args.seed, max_steps=args.max_steps, priors=priors,
-                           profile={"auto": "auto", "on": True, "off": False}[args.profile])
+                           profile={"auto": "auto", "on": True, "off": False}[args.profile],
+                           on_models=load_figure_modules)
     except (idn.RecordError, ValueError) as exc:
         raise ui.CLIError(str(exc)) from None
     report = idn.report_dict(res)
@@ -133,6 +141,8 @@ def run_identify(args) -> int:
 
         written.append(save_npz_atomic(out / "posterior.npz", names=np.asarray(post.names),
                                        samples=post.samples))
+    from ..plotting import correlation_figure, fit_figure
+
     sines = [(d, m, c) for d, m, c in zip(res.data, res.model_labels(), res.model_harmonics())
              if m != "frf"]
     if sines:
