@@ -103,6 +103,7 @@ def main(argv=None, files=None) -> int:
     files = sorted(HERE.glob("test_*.py") if files is None else map(Path, files),
                    key=lambda p: (-_EXPECTED_S.get(p.name, 30), p.name))
     env = dict(os.environ)
+    env.setdefault("BSFS_TEST_FAST_EXIT", "1")  # conftest.py: no interpreter teardown
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env.setdefault(var, "1")
     jobs = int(os.environ.get("BSFS_TEST_JOBS", min(2, os.cpu_count() or 1)))
