@@ -42,12 +42,6 @@ _EXPECTED_S = {"test_notebooks.py": 289, "test_design.py": 209, "test_identifica
                "test_params.py": 4, "test_programs.py": 3, "test_records.py": 3,
                "test_status.py": 3, "test_layers.py": 2, "test_tdms.py": 2}
 
-# Files that mostly run programs the other files compile: started when about their own
-# time (with a warm cache) of other work is left, so that the shared compilation cache is
-# warm for them and the workers end together. test_notebooks.py took 289 s first in a
-# cold run (2026-11-27), 76 s with the cache the run had filled.
-_LATE_S = {"test_notebooks.py": 100}
-
 _COUNT = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected)\b")
 _SUMMARY = re.compile(r"^=*\s*(\d+ \w+|no tests ran)\b.* in [\d.]+s")
 
@@ -68,21 +62,6 @@ def _deselects_slow(args) -> bool:
     marks = [b for a, b in zip(args, args[1:], strict=False) if a == "-m"]
     marks += [a[2:] for a in args if a.startswith("-m") and len(a) > 2]
     return any("not slow" in m for m in marks)
-
-
-def _order(paths) -> list[Path]:
-    """Longest expected first (the pool's workers end close together), except the
-    `_LATE_S` files, each placed before a tail of the shortest files that takes about its
-    own late time."""
-    files = sorted(paths, key=lambda p: (-_EXPECTED_S.get(p.name, 30), p.name))
-    for late in [p for p in files if p.name in _LATE_S]:
-        files.remove(late)
-        i, tail = len(files), 0.0
-        while i > 0 and tail + _EXPECTED_S.get(files[i - 1].name, 30) <= _LATE_S[late.name]:
-            i -= 1
-            tail += _EXPECTED_S.get(files[i].name, 30)
-        files.insert(i, late)
-    return files
 
 
 def _run(path, extra, env):
@@ -129,7 +108,8 @@ def write_record(path: Path, data: dict) -> None:
 def main(argv=None, files=None) -> int:
     """Run `files` (default: every tests/test_*.py), record the run, return the status."""
     extra = list(sys.argv[1:] if argv is None else argv)
-    files = _order(HERE.glob("test_*.py") if files is None else map(Path, files))
+    files = sorted(HERE.glob("test_*.py") if files is None else map(Path, files),
+                   key=lambda p: (-_EXPECTED_S.get(p.name, 30), p.name))
     env = dict(os.environ)
     env.setdefault("BSFS_TEST_FAST_EXIT", "1")  # conftest.py: no interpreter teardown
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
