@@ -268,6 +268,10 @@ def main(argv=None) -> int:
     ap.add_argument("--set", choices=sorted(SETS), action="append",
                     help="fit set (repeatable; default both)")
     ap.add_argument("--drives", type=int, default=100)
+    ap.add_argument("--first", type=int, default=0,
+                    help="first drive to run (drives FIRST..DRIVES-1; the summary reads "
+                         "every drive below DRIVES in the file): split a study between "
+                         "processes with their own --out, then merge the files")
     ap.add_argument("--report-only", action="store_true")
     ap.add_argument("--draw", choices=("uniform", "prior"), default="uniform",
                     help="the drives' dampers (and the default set's other parameters): "
@@ -289,7 +293,7 @@ def main(argv=None) -> int:
         path = out / f"{kind}{tag}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
-            for drive in range(args.drives):
+            for drive in range(args.first, args.drives):
                 if drive in done:
                     continue
                 row = dict(run_drive(kind, drive, args.noise_free, args.draw), commit=commit)
