@@ -323,6 +323,11 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
         prep = prepare(args, kwargs)
         return False if prep is None else _prefetch(prep, wait=False)
 
+    def keeps(*args, **kwargs) -> bool:
+        """Whether `call(*args, **kwargs)` runs a kept program (else the plain `filter_jit`
+        one, which `prefetch` does not compile: see `prefetch_jit`)."""
+        return prepare(args, kwargs) is not None
+
     def _prefetch(prep, wait: bool) -> bool:
         key, static, treedef, leaves, folder = prep
         if key in _loaded or key in _pending:
@@ -345,4 +350,5 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
     call.plain = jitted
     call.prefetch = prefetch
     call.prefetch_now = prefetch_now
+    call.keeps = keeps
     return call

@@ -97,13 +97,13 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     data = [measurement_data(r) for r in loaded]
     prior = bsfs_jax.preset() if prior is None else prior
     problem = Problem(data, prior, fit_names, model=model, priors=priors)
-    # The model at the estimate (and its check) comes from the branch kernel below: its
-    # fitted orbits are the model's, and no separate program solves them again.
     def models_chosen(chosen):
         prefetch_check(chosen)
         if on_models is not None:
             on_models(chosen)
 
+    # The model at the estimate (and its check) comes from the branch kernel below: its
+    # fitted orbits are the model's, and no separate program solves them again.
     result = fit(problem, starts=starts, seed=seed, max_steps=max_steps, model_check=False,
                  on_models=models_chosen)
     result, branch = check_model(result)

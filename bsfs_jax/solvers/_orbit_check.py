@@ -157,9 +157,12 @@ def prefetch_check_orbits(vector_field, setup, data, batch: int, n_states: int, 
     dummy = _args(np.ones(batch), np.ones((batch, n_states)), np.ones((batch, n_states)),
                   np.ones(batch, int), tol, max_steps, max_period, samples_per_period)
     args = (vector_field, setup, data, *dummy, settings)
-    # A kept program (a vector field of bsfs_jax) waits in `cached_jit`'s own queue; any
-    # other is compiled by jit and waited for here (`check_orbits`).
-    if not _check_batch.prefetch_now(*args):
+    # A kept program (a vector field of bsfs_jax) waits in `cached_jit`'s own queue (and
+    # is not prefetched again once loaded or pending); any other is compiled by jit and
+    # waited for here (`check_orbits`).
+    if _check_batch.keeps(*args):
+        _check_batch.prefetch_now(*args)
+    else:
         _PREFETCHED[key] = prefetch_jit(_check_batch.plain, *args)
 
 
