@@ -66,7 +66,8 @@ class FitResult:
 
     def add_model_issue(self, text: str, kind: str = "model") -> None:
         """Mark the fit not converged because of the model at the estimate; `kind` names
-        the cause for programs ("no_steady_state", "truncation", "swept_orbit")."""
+        the cause for programs ("no_steady_state", "truncation", "swept_orbit",
+        "record_misfit")."""
         self.model_issues.append(text)
         self.model_issue_kinds.append(kind)
         self.converged = False

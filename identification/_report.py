@@ -12,6 +12,7 @@ import bsfs_jax
 
 from ._fit import FitResult, fit, gate_steady_state
 from ._measurement import HarmonicData, harmonic_analysis
+from ._misfit import gate_record_misfit
 from ._parameters import DEFAULT_FIT, require_x64
 from ._problem import MODEL_ERROR, Problem, is_frf
 from ._profile import profile_intervals
@@ -108,6 +109,7 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
                  on_models=models_chosen)
     result, branch = check_model(result)
     problem = result.problem  # the models as chosen at the estimate
+    gate_record_misfit(result)
     unc = uncertainty(result)
     lin = None
     if profile == "auto":

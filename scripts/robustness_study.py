@@ -145,7 +145,8 @@ def failure_cause(res, cost_fit, cost_truth) -> str | None:
             kind = fr.model_issue_kinds[0]
             return {"truncation": "model truncation error above the gate",
                     "no_steady_state": "no model at the estimate",
-                    "swept_orbit": "swept record off its sweep's orbit at the estimate"}.get(
+                    "swept_orbit": "swept record off its sweep's orbit at the estimate",
+                    "record_misfit": "a record the model does not explain"}.get(
                 kind, "model issue: " + fr.model_issues[0][:80])
         if fr.model_choice == "unsettled":
             return "model choice unsettled"

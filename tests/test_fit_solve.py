@@ -131,3 +131,35 @@ def test_the_truncation_gate_names_the_record_and_its_kind(z, gated):
     assert res.model_issue_kinds == (["truncation"] if gated else [])
     if gated:
         assert "'b'" in res.model_issues[0] and f"{TRUNCATION_GATE:g}" in res.model_issues[0]
+
+
+@pytest.mark.parametrize("scales, gated", [
+    ((1, 1, 30, 1, 1), [2]),       # one record 30x its noise, the others at it: gated
+    ((30, 25, 30, 35, 30), []),    # model error spread over every record: widened instead
+    ((1, 1, 5, 1, 1), []),         # 5x its noise: under the gate
+    ((1, 30), []),                 # two records: nothing to compare a misfit with
+])
+def test_a_record_the_model_does_not_explain_makes_the_fit_not_converged(scales, gated):
+    """Widening the intervals by the noise scale assumes the model error is spread over
+    the records; where one record carries it, it sets the estimate (drive 267 of the
+    preload robustness study), and the fit says it is not converged, naming the record."""
+    import types
+
+    from identification._fit import FitResult
+    from identification._misfit import gate_record_misfit
+
+    rng = np.random.default_rng(1)
+    n = 40
+    names = [f"rec{k}" for k in range(len(scales))]
+    residual = np.concatenate([s * rng.standard_normal(n) for s in scales] + [np.zeros(2)])
+    used = np.ones(n * len(scales), bool)
+    problem = types.SimpleNamespace(
+        data=[types.SimpleNamespace(name=nm) for nm in names], used_mask=lambda: used,
+        record_slices=lambda: [slice(k * n, (k + 1) * n) for k in range(len(scales))])
+    res = FitResult(problem, np.zeros(2), np.ones(2), 1.0, residual,
+                    np.zeros((residual.size, 2)), [], True, True, 0.0, 1, 0.0)
+    gate_record_misfit(res)
+    assert res.converged is (not gated)
+    assert res.model_issue_kinds == ["record_misfit"] * len(gated)
+    for k, text in zip(gated, res.model_issues):
+        assert f"'{names[k]}'" in text and "identify without it" in text
