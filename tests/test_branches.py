@@ -230,3 +230,25 @@ def test_a_lightly_damped_up_sweep_follows_its_upper_branch_to_the_fold():
     ref = abs(np.asarray(acceleration_of(orbit_of(system, f, fc, z), f, 1))[0])
     assert abs(a_up - ref) < 1e-6 * ref
     assert a_up > 5.0 * a_down  # the upper orbit, not the one the down-sweep reaches
+
+
+@pytest.mark.parametrize("frequency", [1090.0, 1119.7])
+def test_past_a_hardening_fold_the_up_sweep_lands_on_the_orbit_that_remains(frequency):
+    """Drive 262 of the preload robustness study: the up-sweep's upper branch folds near
+    1088 Hz, at the linear resonance. Past it the orbit that remains (the down-sweep's) is
+    a quarter of the linear response; the sweep jumps there, and where no start converges
+    at one frequency it jumps again a step further on (a sweep that instead crept on in
+    its smallest step ran out of solves, and the synthesis said 'no periodic orbit')."""
+    from identification._orbit_model import acceleration_of, swept_orbit
+
+    truth = dict(nut_preload=1433.246631862498, bearing_preload=814.6446398656908,
+                 c_b=780.8600440859817, c_s=128.13901611273874, c_n=3192.865061743776)
+    p = bsfs_jax.preset().replace("thermal.speed_rpm", 2000.0)
+    for name, v in truth.items():
+        p = p.replace(idn.FIT_PARAMETERS[name].key, v)
+    system = bsfs_jax.build_system(p)
+    fc = jnp.asarray([100.0 + 0j])
+    up, down = (swept_orbit(system, frequency, fc, d) for d in (1.0, -1.0))
+    assert bool(up.converged) and bool(down.converged) and bool(up.stable)
+    a_up, a_down = (abs(np.asarray(acceleration_of(o, frequency, 1))[0]) for o in (up, down))
+    assert abs(a_up - a_down) < 1e-6 * a_down
