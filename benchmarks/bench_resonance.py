@@ -110,8 +110,9 @@ def markdown(r) -> str:
               "modules load on the background thread during the fit's solve (0.4 s). "
               "Alternating warm runs of the default set with the code before, 5 each: "
               "median 7.40 s against 8.54 s, `report.json` identical.", "",
-              "Session 6 (2026-11-27 14:28, a fresh checkout on the same machine type; the "
-              "run before, 12:02: preload 26.2 s / 6.5 s, default 27.3 s / 7.9 s): the swept "
+              "Session 6 (2026-11-27, a fresh checkout on the same machine type; the run "
+              "before, 12:02: preload 26.2 s / 6.5 s, default 27.3 s / 7.9 s; at 14:28, with "
+              "the first version of the change: 23.2 s / 5.4 s and 24.3 s / 6.2 s): the swept "
               "records' model follows its branch with an adaptive step (`_orbit_model."
               "swept_unknowns`). That change costs no time here: the preload set, the code "
               "before and after in fresh processes, one cold run each (22.7 s / 23.7 s) and "
