@@ -35,6 +35,17 @@ MODEL_ERROR = 0.1
 
 _receptance_jit = eqx.filter_jit(receptance)
 _error_lines_jit = eqx.filter_jit(jax.vmap(linearisation_error, in_axes=(None, 0, 0)))
+LINE_BUCKET = 512  # FRF line counts are padded to a multiple of this: one program per bucket
+
+
+def _padded(x):
+    """x (n, ...) padded along its first axis to a multiple of `LINE_BUCKET` with copies of
+    its last row, so that records with other line counts reuse the compiled program (each
+    chirp's usable band, hence its count, differs: every new record set compiled anew)."""
+    n = x.shape[0]
+    m = -(-max(n, 1) // LINE_BUCKET) * LINE_BUCKET
+    return jnp.asarray(np.concatenate([x, np.repeat(x[-1:], m - n, axis=0)]) if n else
+                       np.zeros((m,) + x.shape[1:], x.dtype))
 
 
 def is_frf(d) -> bool:
@@ -105,7 +116,7 @@ def frf_amplitude_ratio(system, data) -> float:
     as the amplitude at every line (0 when the file does not give it)."""
     freq = np.asarray(data.frequency_hz)
     force = np.full(freq.shape, float(data.force_amplitude_n or 0.0))
-    x = np.asarray(_receptance_jit(system, jnp.asarray(freq))) * force[:, None]
+    x = np.asarray(_receptance_jit(system, _padded(freq)))[:freq.size] * force[:, None]
     d_nut, d_bearing = _preload_deformations(system)
     return float(max(np.max(np.abs(x[:, 2] - x[:, 1])) / d_nut,
                      np.max(np.abs(x[:, 0])) / d_bearing))
@@ -129,7 +140,7 @@ def chirp_line_z(system, data):
     if data.excitation != "chirp" or not data.force_amplitude_n:
         return np.zeros(freq.shape)
     force = np.full((freq.size, 1), float(data.force_amplitude_n), complex)
-    err = np.asarray(_error_lines_jit(system, jnp.asarray(freq), jnp.asarray(force)))[:, 0]
+    err = np.asarray(_error_lines_jit(system, _padded(freq), _padded(force)))[:freq.size, 0]
     z = _z(err, np.asarray(data.variance, float))
     return np.where(np.isfinite(z), z, 0.0)
 

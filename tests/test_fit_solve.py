@@ -163,3 +163,43 @@ def test_a_record_the_model_does_not_explain_makes_the_fit_not_converged(scales,
     assert res.model_issue_kinds == ["record_misfit"] * len(gated)
     for k, text in zip(gated, res.model_issues):
         assert f"'{names[k]}'" in text and "identify without it" in text
+
+
+def test_other_line_counts_and_bands_reuse_the_compiled_programs(no_persistent_cache):
+    """Each chirp's usable band, hence its FRF line count, differs from record to record,
+    and each identification's FRC band starts at its own f1. Both compiled anew per record
+    set (the forecast coverage study's process grew by about 0.05 GB per replicate): the
+    line counts are now padded to a bucket, and the band's start is traced."""
+    import types
+
+    import jax.numpy as jnp
+
+    from bsfs_jax.design._orbit import _linear_start
+    from bsfs_jax.machine import bsfs_family
+    from identification import _choice
+    from identification._measurement import receptance
+
+    system = bsfs_jax.build_system(bsfs_jax.preset())
+    counter = _CompileCounter("")
+    jax.monitoring.register_event_duration_secs_listener(counter)
+    try:
+        ratios, counts = [], []
+        for n in (1100, 1200):  # one bucket (1536 lines)
+            f = np.linspace(100.0, 2500.0, n)
+            ratios.append(_choice.frf_amplitude_ratio(
+                system, types.SimpleNamespace(frequency_hz=f, force_amplitude_n=5.0)))
+            counts.append(counter.count)
+        assert counts[1] == counts[0]  # the second line count compiled nothing
+        family = bsfs_family(bsfs_jax.preset(), 100.0)
+        _linear_start(family, jnp.asarray(900.0, float))
+        second = counter.count
+        _linear_start(family, jnp.asarray(950.0, float))
+        assert counter.count == second
+    finally:
+        jax._src.monitoring.unregister_event_duration_listener(counter)
+    f = np.linspace(100.0, 2500.0, 1100)
+    x = np.asarray(receptance(system, jnp.asarray(f)))  # unpadded, for the value
+    d_nut, d_bearing = _choice._preload_deformations(system)
+    expected = max(np.max(np.abs(5.0 * (x[:, 2] - x[:, 1]))) / d_nut,
+                   np.max(np.abs(5.0 * x[:, 0])) / d_bearing)
+    assert abs(ratios[0] - expected) <= 1e-12 * expected

@@ -207,7 +207,7 @@ def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
     Raises `SolverError` when the amplitude has no maximum inside the interval."""
     lo, hi = _frc_band(params, settings, start_hz, stop_hz)
     family = bsfs_family(params, force_n)
-    guess = _linear_start(family, lo)
+    guess = _linear_start(family, jnp.asarray(lo, float))  # traced: a float would be static
     settings = _frc_settings(params, force_n, settings, lo, hi)
 
     def run(method):
