@@ -23,13 +23,8 @@ def record_misfits(result) -> list[tuple[str, float, float]]:
     """Records whose residual at the estimate the model leaves unexplained while the other
     records are explained: (name, share of the chi-square, residual / noise RMS)."""
     pb = result.problem
-    used = pb.used_mask()
-    r = np.asarray(result.residual)[:used.size]
-    rows = []
-    for d, s in zip(pb.data, pb.record_slices()):
-        ri = r[s][used[s]]
-        rows.append((d.name, float(ri @ ri), ri.size))
-    rows = [x for x in rows if x[2]]
+    rows = [(d.name, float(ri @ ri), ri.size)
+            for d, ri in zip(pb.data, pb.record_residuals(result.residual)) if ri.size]
     if len(rows) < MIN_RECORDS_COMPARED:
         return []
     total = sum(c for _, c, _ in rows)

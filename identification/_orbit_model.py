@@ -250,8 +250,7 @@ def swept_unknowns(system, frequency_hz, force_coeffs, direction,
         moved = ok | exhausted  # the sweep is at `target` now (on the same orbit if none)
         f = jnp.where(moved, target, f)
         z = jnp.where(ok, orbit.unknowns, z)
-        h = jnp.where(ok & ~jumping, jnp.minimum(1.5 * h, h_max),
-                      jnp.where(jumping, h_max, jnp.where(ok, h, 0.5 * h)))
+        h = jnp.where(jumping, h_max, jnp.where(ok, jnp.minimum(1.5 * h, h_max), 0.5 * h))
         k = jnp.where(fold | again, 1, jnp.where(jumping & ~moved, k + 1, 0))
         f_jump = jnp.where(fold, target, jnp.where(
             again, target + direction * jnp.minimum(h_max, remaining(target)), f_jump))

@@ -338,6 +338,12 @@ class Problem:
             out[i] = np.asarray(a)
         return out
 
+    def record_residuals(self, residual):
+        """For each record (in data order) its used entries of a data residual (numpy)."""
+        used = self.used_mask()
+        r = np.asarray(residual)
+        return [r[s][used[s]] for s in self.record_slices()]
+
     def per_record(self, preds):
         """A prediction per group ([(sine (R, H), FRF (L,))], `_model.predict`) -> the model
         values of each record in data order (numpy)."""

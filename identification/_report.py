@@ -109,7 +109,6 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
                  on_models=models_chosen)
     result, branch = check_model(result)
     problem = result.problem  # the models as chosen at the estimate
-    gate_record_misfit(result)
     unc = uncertainty(result)
     lin = None
     if profile == "auto":
@@ -132,7 +131,8 @@ TRUNCATION_GATE = 1.0
 def check_model(result):
     """The model at the estimate, checked (`record_branches`): each orbit record's branch,
     its model (`FitResult.model`, from the same program) and the gates (no steady state,
-    truncation error). Returns (result, branches).
+    truncation error, one record carrying the misfit: `_misfit.py`). Returns (result,
+    branches).
 
     Where the truncation gate fails, more harmonics are not the cure: on the one gated
     drive of the preload robustness study (an upper orbit at 1134 Hz, 6.5 km/s^2, the
@@ -146,6 +146,7 @@ def check_model(result):
     gate_steady_state(result)
     gate_truncation(result, branch, [d.name for d in problem.data],
                     problem.structure.orbit_harmonics)
+    gate_record_misfit(result)
     return result, branch
 
 
@@ -234,11 +235,10 @@ def _model_errors(z, frf: bool) -> dict:
 def _record_rows(res: IdentificationResult):
     pb = res.problem
     model = res.model_harmonics()
-    slices = pb.record_slices()
-    used = pb.used_mask()
+    residuals = pb.record_residuals(res.fit.residual)
     rows = []
     for i, d in enumerate(res.data):
-        r = res.fit.residual[slices[i]][used[slices[i]]]
+        r = residuals[i]
         row = dict(name=d.name, file=d.source if is_frf(d) else d.record.source,
                    speed_rpm=d.speed_rpm, model=pb.models[i],
                    amplitude_ratio=pb.amplitude_ratios[i],

@@ -212,4 +212,3 @@ def uncertainty(result: FitResult) -> Uncertainty:
     return Uncertainty(pb.names, pb.units, values, std, ci, ["linearised"] * p, scaled_std,
                        prior_sigma, np.asarray(determined & noise["estimable"]), share, corr,
                        cov, sv, vt.T, direction_std, noise, comp)
-

@@ -187,6 +187,15 @@ def test_a_fit_of_swept_records_lands_on_their_branches(swept_problem):
     assert abs(res.values[0] - truth) < 4 * sigma
 
 
+
+def _study_drive(**truth):
+    """A drive of the preload robustness study: the default preset at 2000 r/min with the
+    fitted parameters' true values (`scripts/robustness_study.py`, `--draw prior`)."""
+    p = bsfs_jax.preset().replace("thermal.speed_rpm", 2000.0)
+    for name, v in truth.items():
+        p = p.replace(idn.FIT_PARAMETERS[name].key, v)
+    return bsfs_jax.build_system(p)
+
 def test_a_lightly_damped_up_sweep_follows_its_upper_branch_to_the_fold():
     """Drive 267 of the preload robustness study (damping ratio 0.26 % at 1091 Hz, a
     hardening resonance): sweeping up, a stepped sine stays on the upper orbit far past the
@@ -203,12 +212,9 @@ def test_a_lightly_damped_up_sweep_follows_its_upper_branch_to_the_fold():
         swept_orbit,
     )
 
-    truth = dict(nut_preload=1306.6395169721436, bearing_preload=843.6326718231628,
-                 c_b=291.44685596464143, c_s=111.50394916691158, c_n=1369.3012411083357)
-    p = bsfs_jax.preset().replace("thermal.speed_rpm", 2000.0)
-    for name, v in truth.items():
-        p = p.replace(idn.FIT_PARAMETERS[name].key, v)
-    system = bsfs_jax.build_system(p)
+    system = _study_drive(nut_preload=1306.6395169721436, bearing_preload=843.6326718231628,
+                          c_b=291.44685596464143, c_s=111.50394916691158,
+                          c_n=1369.3012411083357)
     f, fc = 1140.0, jnp.asarray([100.0 + 0j])
     up, down = (swept_orbit(system, f, fc, d) for d in (1.0, -1.0))
     a_up, a_down = (abs(np.asarray(acceleration_of(o, f, 1))[0]) for o in (up, down))
@@ -241,12 +247,9 @@ def test_past_a_hardening_fold_the_up_sweep_lands_on_the_orbit_that_remains(freq
     its smallest step ran out of solves, and the synthesis said 'no periodic orbit')."""
     from identification._orbit_model import acceleration_of, swept_orbit
 
-    truth = dict(nut_preload=1433.246631862498, bearing_preload=814.6446398656908,
-                 c_b=780.8600440859817, c_s=128.13901611273874, c_n=3192.865061743776)
-    p = bsfs_jax.preset().replace("thermal.speed_rpm", 2000.0)
-    for name, v in truth.items():
-        p = p.replace(idn.FIT_PARAMETERS[name].key, v)
-    system = bsfs_jax.build_system(p)
+    system = _study_drive(nut_preload=1433.246631862498, bearing_preload=814.6446398656908,
+                          c_b=780.8600440859817, c_s=128.13901611273874,
+                          c_n=3192.865061743776)
     fc = jnp.asarray([100.0 + 0j])
     up, down = (swept_orbit(system, frequency, fc, d) for d in (1.0, -1.0))
     assert bool(up.converged) and bool(down.converged) and bool(up.stable)

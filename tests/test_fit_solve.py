@@ -156,6 +156,7 @@ def test_a_record_the_model_does_not_explain_makes_the_fit_not_converged(scales,
     problem = types.SimpleNamespace(
         data=[types.SimpleNamespace(name=nm) for nm in names], used_mask=lambda: used,
         record_slices=lambda: [slice(k * n, (k + 1) * n) for k in range(len(scales))])
+    problem.record_residuals = lambda r: idn.Problem.record_residuals(problem, r)
     res = FitResult(problem, np.zeros(2), np.ones(2), 1.0, residual,
                     np.zeros((residual.size, 2)), [], True, True, 0.0, 1, 0.0)
     gate_record_misfit(res)
