@@ -372,6 +372,8 @@ def _orbits(src: Sources, v: Values, targets: dict):
     put("hb_adaptive_peak_diff", lambda: sci(hb(ad)["peak_amp_rel_diff"]))
     put("hb_verdict", lambda: verdict(hb(ad)["speed_ratio_shooting_over_this"]
                                       >= _t(targets, "hb_over_shooting")))
+    put("hb_first_ratio", lambda: sig(hb("HB adaptive (start 8), first order")[
+        "speed_ratio_shooting_over_this"]))
     put("hb8_ratio", lambda: sig(hb("HB fixed 8")["speed_ratio_shooting_over_this"]))
     put("hb8_harmonics", lambda: integer(hb("HB fixed 8")["harmonics"]))
     put("hb8_peak_diff", lambda: sci(hb("HB fixed 8")["peak_amp_rel_diff"]))

@@ -136,6 +136,45 @@ def test_harmonic_count_falls_again_past_the_peak(duffing_frc):
         np.testing.assert_allclose(hb.states[i], orbit.state, rtol=0, atol=1e-5)
 
 
+def test_second_order_harmonic_balance_continues_the_same_branch(duffing_frc,
+                                                                 duffing_frc_hb):
+    """Harmonic balance in the positions alone (`second_order`: half the unknowns) follows
+    the first-order method's branch: the same folds and peak to 1e-9, through harmonic
+    upgrades and, from 2 harmonics, downgrades past the peak (the unknowns converted
+    between counts at half the width)."""
+    family = frequency_family(**HARDENING)
+
+    def run(h, tol):
+        return continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                               vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                               p_scale=1.0, amplitude_index=0,
+                               method=HarmonicBalance(harmonics=h, error_tol=tol,
+                                                      second_order=True))
+
+    two = run(4, 1e-9)
+    assert two.info["second_order"] and two.info["stop_reason"] == "left the parameter " \
+        "interval"
+    assert np.all(two.error_estimates <= 1e-9)
+    assert two.method.harmonics == duffing_frc_hb.method.harmonics
+    folds = sorted(b.p for b in two.bifurcations if b.kind == "fold")
+    folds_first = sorted(b.p for b in duffing_frc_hb.bifurcations if b.kind == "fold")
+    folds_sh = sorted(b.p for b in duffing_frc.bifurcations if b.kind == "fold")
+    assert len(folds) == 2
+    np.testing.assert_allclose(folds, folds_first, rtol=1e-9)
+    np.testing.assert_allclose(folds, folds_sh, rtol=1e-7)
+    assert two.peak.amplitude == pytest.approx(duffing_frc_hb.peak.amplitude, rel=1e-9)
+    # Every point's state (velocities from the positions' series) is the orbit's.
+    for i in range(0, len(two), 7):
+        args, period = family(two.p[i])
+        orbit = periodic_orbit(duffing, two.states[i], args, period, scale=jnp.ones(2))
+        np.testing.assert_allclose(two.states[i], orbit.state, rtol=0, atol=1e-7)
+    low = run(2, 1e-6)
+    assert low.info["harmonic_upgrades"] >= 1 and low.info["harmonic_downgrades"] >= 1
+    assert np.all(low.error_estimates <= 1e-6)
+    np.testing.assert_allclose(sorted(b.p for b in low.bifurcations if b.kind == "fold"),
+                               folds_sh, rtol=1e-6)
+
+
 def test_duffing_folds_match_harmonic_balance(duffing_frc):
     branch = duffing_frc
     w_hb, a_hb = harmonic_balance_curve(**HARDENING)

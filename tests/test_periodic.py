@@ -32,8 +32,11 @@ def _as_duffing(zeta, w0, f0, omega):
     return (2 * zeta * w0, w0 * w0, 0.0, f0, omega)
 
 
-@pytest.mark.parametrize("method", [Shooting(), Shooting(segments=3), HB8],
-                         ids=["single-shooting", "multiple-shooting", "harmonic-balance"])
+@pytest.mark.parametrize("method", [Shooting(), Shooting(segments=3), HB8,
+                                    HarmonicBalance(harmonics=8, error_tol=1e-8,
+                                                    second_order=True)],
+                         ids=["single-shooting", "multiple-shooting", "harmonic-balance",
+                              "harmonic-balance-second-order"])
 def test_linear_oscillator_matches_closed_form(method):
     zeta, w0, f0, omega = 0.05, 1.0, 1.0, 1.3
     period = 2 * np.pi / omega
@@ -193,6 +196,68 @@ def test_harmonic_balance_jacobian_from_the_aft_equals_forward_mode(bsfs_point):
             # the same residual, fused differently: equal to rounding (unknowns are O(1))
             assert float(jnp.max(jnp.abs(r - r_ad))) <= 1e-12
             assert float(jnp.max(jnp.abs(j - j_ad))) <= 1e-13 * float(jnp.max(jnp.abs(j_ad)))
+
+
+def test_second_order_harmonic_balance_is_the_first_order_one(bsfs_point):
+    """Harmonic balance in the positions alone (`second_order=True`, the velocities'
+    coefficients from the positions') solves the first-order method's equations with half
+    the unknowns: through contact loss (5000 N) the same orbit (coefficients, state,
+    multipliers, error estimate) to rounding; its assembled Jacobian is the forward-mode
+    Jacobian of its residual, on the orbit and off it; the chord iteration of the
+    linearised field converges to the same orbit."""
+    from bsfs_jax.solvers import _harmonic_second as second
+    from bsfs_jax.solvers._newton import residual_and_jacobian
+
+    family, args, period, guess, _ = bsfs_point
+    vf, scale = family.vector_field, family.scale
+    omega = 2 * np.pi / period
+    for h in (7, 16):
+        one = HarmonicBalance(harmonics=h, max_harmonics=h)
+        two = HarmonicBalance(harmonics=h, max_harmonics=h, second_order=True)
+        o1 = periodic_orbit(vf, guess, args, period, scale=scale, method=one, throw=False)
+        o2 = periodic_orbit(vf, guess, args, period, scale=scale, method=two, throw=False)
+        assert o2.unknowns.shape[0] * 2 == o1.unknowns.shape[0] == 6 * (2 * h + 1)
+        assert o1.result == o2.result == RESULTS.harmonics_insufficient  # at 5000 N
+        full = second.expand(o2.unknowns, h, 6, omega, scale)
+        np.testing.assert_allclose(full, o1.unknowns, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(o2.state / scale, o1.state / scale, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(np.asarray(o2.multipliers), np.asarray(o1.multipliers),
+                                   atol=1e-10)
+        assert float(o2.error_estimate) == pytest.approx(float(o1.error_estimate), rel=1e-6)
+        # At the expanded coefficients the first-order residual's position rows (x' = v)
+        # vanish, and its velocity rows are the second-order residual.
+        r_full = np.asarray(one.residual(vf, full, args, period, 1, scale)).reshape(-1, 6)
+        assert np.max(np.abs(r_full[:, :3])) < 1e-13
+        np.testing.assert_allclose(
+            r_full[:, 3:].reshape(-1),
+            two.residual(vf, o2.unknowns, args, period, 1, scale), rtol=0, atol=1e-14)
+        for z in (o2.unknowns, o2.unknowns + 1e-2 * jnp.sin(jnp.arange(o2.unknowns.shape[0]))):
+            r_ad, j_ad = residual_and_jacobian(
+                lambda v, _: two.residual(vf, v, args, period, 1, scale), z, None)
+            r, j = two.residual_and_jacobian(vf, z, args, period, 1, scale)
+            assert float(jnp.max(jnp.abs(r - r_ad))) <= 1e-12
+            assert float(jnp.max(jnp.abs(j - j_ad))) <= 1e-13 * float(jnp.max(jnp.abs(j_ad)))
+
+
+def test_second_order_chord_converges_to_the_orbit():
+    """The chord iteration in the positions (`HarmonicBalance.chord`, the linear field's
+    block per harmonic) from zero: one step is the linear oscillator's closed form; on a
+    weakly nonlinear Duffing oscillator it converges to the orbit Newton finds."""
+    hb = HarmonicBalance(harmonics=8, error_tol=1e-10, second_order=True)
+    zeta, w0, f0, omega = 0.05, 1.0, 1.0, 1.3
+    lin = _as_duffing(zeta, w0, f0, omega)
+    period = 2 * np.pi / omega
+    jac = jnp.array([[0.0, 1.0], [-w0 * w0, -2 * zeta * w0]])
+    z = hb.chord(duffing, jnp.zeros(17), lin, period, 1, ONES, jac, 1)[-1]
+    np.testing.assert_allclose(hb.initial_state(z, period, 1, ONES),
+                               linear_oscillator_response(zeta, w0, f0, omega), atol=1e-12)
+    weak = (0.1, 1.0, 0.05, 0.3, 1.6)  # far from the fold: the chord map contracts
+    period = 2 * np.pi / weak[4]
+    jac = jnp.array([[0.0, 1.0], [-weak[1], -weak[0]]])
+    zs = hb.chord(duffing, jnp.zeros(17), weak, period, 1, ONES, jac, 60)
+    orbit = periodic_orbit(duffing, jnp.zeros(2), weak, period, method=hb, scale=ONES)
+    np.testing.assert_allclose(zs[-1], orbit.unknowns, atol=1e-10)
+    assert float(jnp.max(jnp.abs(zs[-1] - zs[-2]))) < 1e-12
 
 
 @pytest.mark.parametrize("method", [Shooting(), HarmonicBalance(harmonics=32,

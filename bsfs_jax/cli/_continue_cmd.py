@@ -180,10 +180,18 @@ def run_continue(args) -> int:
     shooting = Shooting(settings=settings)
     harmonics, harmonics_note = starting_harmonics(params, args.force, args.start, args.stop,
                                                    args.method, args.harmonics, args.hb_tol)
-    hb = HarmonicBalance(harmonics=harmonics, error_tol=args.hb_tol)
+    # The BSFS state is (positions, velocities): harmonic balance in the positions alone.
+    hb = HarmonicBalance(harmonics=harmonics, error_tol=args.hb_tol, second_order=True)
     dof = _DOFS[args.dof]
     started = time.perf_counter()
     family = bsfs_family(params, args.force)
+    # Shooting's corrector (the folds' cross-check, or auto's fallback) is traced and
+    # compiled on the second core meanwhile: from here (its layout needs only the state's
+    # size, six), beside the transient's and harmonic balance's own compilations.
+    pending = None if args.method == "shooting" or (
+        args.method == "hb" and args.no_cross_check) else prefetch_corrector(
+            family, family.vector_field, shooting, np.zeros(6), args.start,
+            amplitude_index=2)
     print(f"transient of {args.transient_periods} periods at {args.start:g} Hz, "
           f"{args.force:g} N ...", flush=True)
     # Only a start for the corrector: the forward-only fused loop compiles in about half
@@ -192,11 +200,6 @@ def run_continue(args) -> int:
                      transient_periods=args.transient_periods, periods=1,
                      samples_per_period=64, solver="dopri5-fused").final_state
 
-    # Shooting's corrector (the folds' cross-check, or auto's fallback) compiles on the
-    # second core while harmonic balance continues.
-    pending = None if args.method == "shooting" or (
-        args.method == "hb" and args.no_cross_check) else prefetch_corrector(
-            family, family.vector_field, shooting, guess, args.start, amplitude_index=2)
 
     def run(method):
         if method is shooting:
@@ -213,7 +216,7 @@ def run_continue(args) -> int:
     t_cont = time.perf_counter() - t_cont
     primary = branch.method
     other = shooting if isinstance(primary, HarmonicBalance) else HarmonicBalance(
-        harmonics=max(harmonics, 16), error_tol=args.hb_tol)
+        harmonics=max(harmonics, 16), error_tol=args.hb_tol, second_order=True)
     settle(pending)
     checks = [] if args.no_cross_check else _cross_check_folds(family, branch, other,
                                                                settings, args)

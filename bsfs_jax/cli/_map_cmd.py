@@ -237,7 +237,8 @@ def run(args) -> int:
                                                ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
                                                max_points=args.max_points,
                                                amplitude_index=2, locate_iters=LOCATE_ITERS),
-                args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol),
+                args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol,
+                                             second_order=True),
                 Shooting(), args.hb_tol)
             for w in why:
                 notes.append(f"{args.y} = {y:g}: {w}")

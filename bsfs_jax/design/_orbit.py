@@ -78,7 +78,8 @@ class OrbitSettings:
         if self.method == "shooting":
             return Shooting()
         if self.method == "hb":
-            return HarmonicBalance(harmonics=self.harmonics, max_harmonics=self.harmonics)
+            return HarmonicBalance(harmonics=self.harmonics, max_harmonics=self.harmonics,
+                                   second_order=True)
         raise ValueError(f"method must be 'hb' or 'shooting', got {self.method!r}")
 
     def frc_orbit_method(self):
@@ -86,7 +87,7 @@ class OrbitSettings:
             return HarmonicBalance(harmonics=self.frc_harmonics,
                                    max_harmonics=max(self.frc_harmonics,
                                                      self.frc_max_harmonics),
-                                   error_tol=self.frc_tol)
+                                   error_tol=self.frc_tol, second_order=True)
         if self.frc_method == "shooting":
             return Shooting()
         raise ValueError(f"frc_method must be 'hb' or 'shooting', got {self.frc_method!r}")

@@ -262,7 +262,7 @@ class _Downgrade:
 
 def _size(kernel) -> int:
     d = int(np.asarray(kernel.scale).shape[0])
-    return d * (2 * int(kernel.method.harmonics) + 1) + 1
+    return kernel.method.size(d) + 1
 
 
 def _first_point(kernel, y_guess, p_start, normalise):

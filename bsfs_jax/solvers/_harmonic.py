@@ -38,67 +38,17 @@ Jacobian) was not used: it returns d (2H + 1) exponents of which d must be picke
 sorting heuristic that fails near bifurcations, where the answer matters most.
 """
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
+from . import _harmonic_second as second
+from ._aft_layout import aft_jacobian_layout, chained_layout, derivative_blocks
 from ._method import AbstractOrbitMethod
 from ._results import RESULTS
 from ._shooting import SHOOTING_SETTINGS, Scaled, flow
 
 _MAGNUS_STEPS = 256  # Runge-Kutta steps per orbit period for the monodromy
-
-
-@functools.lru_cache(maxsize=16)
-def _aft_jacobian_layout(h: int, n: int):
-    """Static gather layout of the AFT Jacobian (`HarmonicBalance.residual_and_jacobian`).
-
-    Blocks (r, c) over r, c in [c_0, a_1..a_H, b_1..b_H]; each block is
-    c1 * table[w1] + c2 * table[w2], table = [alpha_0..alpha_(N-1), beta_0..beta_(N-1)]
-    (Ahat_m = alpha_m + i beta_m). From dP_k/dc_0 = Ahat_k,
-    dP_k/da_l = (Ahat_(k-l) + Ahat_(k+l)) / 2, dP_k/db_l = i (Ahat_(k+l) - Ahat_(k-l)) / 2
-    and the real rows Re P_0, 2 Re P_k (a_k), -2 Im P_k (b_k)."""
-    size = 2 * h + 1
-    w1 = np.zeros((size, size), np.int32)
-    w2 = np.zeros((size, size), np.int32)
-    c1 = np.zeros((size, size))
-    c2 = np.zeros((size, size))
-    alpha = lambda m: m % n  # noqa: E731
-    beta = lambda m: n + m % n  # noqa: E731
-    for r in range(size):
-        k = 0 if r == 0 else (r - 1) % h + 1
-        kind = "c" if r == 0 else ("a" if r <= h else "b")
-        # Re P_k (times 1 for c_0, 2 for a_k) or Im P_k (times -2 for b_k)
-        f = 1.0 if kind == "c" else (2.0 if kind == "a" else -2.0)
-        re = kind != "b"
-        for c in range(size):
-            l_ = 0 if c == 0 else (c - 1) % h + 1
-            ckind = "c" if c == 0 else ("a" if c <= h else "b")
-            if ckind == "c":  # Ahat_k
-                w1[r, c], c1[r, c] = (alpha(k), f) if re else (beta(k), f)
-            elif ckind == "a":  # (Ahat_(k-l) + Ahat_(k+l)) / 2
-                w1[r, c], w2[r, c] = (alpha(k - l_), alpha(k + l_)) if re else \
-                    (beta(k - l_), beta(k + l_))
-                c1[r, c] = c2[r, c] = 0.5 * f
-            else:  # i (Ahat_(k+l) - Ahat_(k-l)) / 2: Re = -(beta_+ - beta_-) / 2,
-                # Im = (alpha_+ - alpha_-) / 2
-                w1[r, c], w2[r, c] = (beta(k + l_), beta(k - l_)) if re else \
-                    (alpha(k + l_), alpha(k - l_))
-                c1[r, c], c2[r, c] = (-0.5 * f, 0.5 * f) if re else (0.5 * f, -0.5 * f)
-    return w1, w2, c1, c2
-
-
-@functools.lru_cache(maxsize=16)
-def _derivative_blocks(h: int):
-    """(2H+1) x (2H+1): +k at (a_k, b_k), -k at (b_k, a_k): d/d(Omega t) in the residual."""
-    out = np.zeros((2 * h + 1, 2 * h + 1))
-    for k in range(1, h + 1):
-        out[k, h + k] = k
-        out[h + k, k] = -k
-    return out
 
 
 class HarmonicBalance(AbstractOrbitMethod):
@@ -107,12 +57,17 @@ class HarmonicBalance(AbstractOrbitMethod):
 
     Pass as `method=` to `periodic_orbit` (which raises the harmonic count until the error
     estimate meets `tol`, up to `max_harmonics`) or to `continue_orbits`.
+
+    `second_order=True`: for a state (x, v) with x' = v exactly (a mechanical system,
+    positions then velocities), the unknowns are the positions' coefficients alone
+    (`_harmonic_second.py`): the same orbits with half the unknowns.
     """
 
     harmonics: int = eqx.field(static=True, default=16)
     time_samples: int | None = eqx.field(static=True, default=None)
     max_harmonics: int = eqx.field(static=True, default=128)
     error_tol: float = eqx.field(static=True, default=1e-4)
+    second_order: bool = eqx.field(static=True, default=False)
 
     name = "harmonic balance"
     uses_chord = True  # a residual costs far less than a Jacobian + LU: chord first
@@ -131,7 +86,34 @@ class HarmonicBalance(AbstractOrbitMethod):
                 else max(16, 4 * self.harmonics))
 
     def with_harmonics(self, h: int) -> "HarmonicBalance":
-        return HarmonicBalance(int(h), None, self.max_harmonics, self.error_tol)
+        return HarmonicBalance(int(h), None, self.max_harmonics, self.error_tol,
+                               self.second_order)
+
+    def width(self, d: int) -> int:
+        """Unknowns per harmonic coefficient for a state of size d (d / 2 where
+        `second_order`: the positions only)."""
+        if not self.second_order:
+            return int(d)
+        if int(d) % 2:
+            raise ValueError(f"HarmonicBalance(second_order=True) needs a state (x, v) of "
+                             f"even size, got {d}")
+        return int(d) // 2
+
+    def size(self, d: int) -> int:
+        """Number of unknowns for a state of size d."""
+        return self.width(d) * (2 * int(self.harmonics) + 1)
+
+    def _first(self) -> "HarmonicBalance":
+        """The first-order method of the same resolution (what `second_order` expands to)."""
+        return HarmonicBalance(self.harmonics, self.time_samples, self.max_harmonics,
+                               self.error_tol) if self.second_order else self
+
+    def _full(self, z, period, n_periods, scale):
+        """First-order coefficients of the unknowns."""
+        if not self.second_order:
+            return z
+        return second.expand(z, int(self.harmonics), scale.shape[0],
+                             2.0 * jnp.pi / (n_periods * period), scale)
 
     # -- what the engine asks of every method (`AbstractOrbitMethod`) ----------------------
     def flag_truncation(self, result, error):
@@ -152,7 +134,8 @@ class HarmonicBalance(AbstractOrbitMethod):
         return orbit
 
     def discretisation(self) -> dict:
-        return {"harmonics": int(self.harmonics), "segments": None}
+        return {"harmonics": int(self.harmonics), "segments": None,
+                **({"second_order": True} if self.second_order else {})}
 
     # -- coefficients <-> time samples ---------------------------------------------------
     def _unpack(self, z, d):
@@ -196,11 +179,17 @@ class HarmonicBalance(AbstractOrbitMethod):
         zs = flow(vector_field, y_guess / scale, args, scale, jnp.zeros_like(t_end), t_end,
                   ts, SHOOTING_SETTINGS)
         zs = jnp.where(jnp.isfinite(zs), zs, 0.0)
-        return self._to_coeffs(zs)
+        z = self._to_coeffs(zs)
+        return second.positions(z, int(self.harmonics), zs.shape[1]) if self.second_order \
+            else z
 
     def from_coefficients(self, other: "HarmonicBalance", z, d, xp=jnp):
         """Unknowns of this method from another HB's unknowns (padding or truncating).
         `xp=numpy` for host-side arrays (no op-by-op programs)."""
+        if bool(other.second_order) != bool(self.second_order):
+            raise ValueError("from_coefficients: both methods must be first order or both "
+                             "second order")
+        d = self.width(d)
         c0, a, b = other._unpack(z, d)
         h = self.harmonics
         pad = max(0, h - other.harmonics)
@@ -209,6 +198,10 @@ class HarmonicBalance(AbstractOrbitMethod):
         return xp.concatenate([c0, a.reshape(-1), b.reshape(-1)])
 
     def residual(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
+        if self.second_order:
+            r = self._first().residual(vector_field, self._full(z, period, n_periods, scale),
+                                       args, period, n_periods, scale)
+            return second.velocity_rows(r, int(self.harmonics), scale.shape[0])
         d = scale.shape[0]
         n = self.n_samples
         t_end = n_periods * period
@@ -236,13 +229,15 @@ class HarmonicBalance(AbstractOrbitMethod):
         dP_k/db_l = i (Ahat_(k+l) - Ahat_(k-l)) / 2, and the real rows are Re P_0,
         2 Re P_k, -2 Im P_k. One Jacobian of the field per sample and d^2 FFTs, instead of
         one forward-mode pass of the whole residual per unknown (d (2H + 1) of them):
-        equal to `jax.jacfwd` of `residual` to rounding (tested)."""
+        equal to `jax.jacfwd` of `residual` to rounding (tested). With `second_order`, the
+        velocity rows, chained through the positions-to-velocities map."""
         d = scale.shape[0]
         n = self.n_samples
         h = self.harmonics
         t_end = n_periods * period
         omega = 2.0 * jnp.pi / t_end
         ts = t_end * jnp.arange(n) / n
+        z = self._full(z, period, n_periods, scale)
         zs = self._to_time(z, d, n)
         field = Scaled(vector_field)
 
@@ -252,14 +247,21 @@ class HarmonicBalance(AbstractOrbitMethod):
 
         g, a = jax.vmap(value_and_a)(ts, zs)
         r = self._balance(z, g, omega, d)
+        w1, w2, c1, c2 = aft_jacobian_layout(h, n)
+        if self.second_order:
+            # Only the velocity rows (the position rows are the identity x' = v).
+            ahat = jnp.fft.fft(a[:, d // 2:], axis=0) / n
+            table = jnp.concatenate([ahat.real, ahat.imag])
+            return (second.velocity_rows(r, h, d),
+                    second.assemble(table, (w1, w2, c1, c2), chained_layout(h, n), h, d,
+                                    omega, scale))
         # Ahat_m = alpha_m + i beta_m, m = 0..N-1 (negative m wrap around), (N, d, d).
         ahat = jnp.fft.fft(a, axis=0) / n
         table = jnp.concatenate([ahat.real, ahat.imag])  # alpha at m, beta at N + m
-        w1, w2, c1, c2 = _aft_jacobian_layout(h, n)
         blocks = c1[..., None, None] * table[w1] + c2[..., None, None] * table[w2]
         m = jnp.transpose(blocks, (0, 2, 1, 3)).reshape((2 * h + 1) * d, (2 * h + 1) * d)
         # dR/dz = D - M / omega, D: +k on (a_k rows, b_k cols), -k on (b_k rows, a_k cols).
-        dmat = jnp.kron(_derivative_blocks(h), jnp.eye(d))
+        dmat = jnp.kron(derivative_blocks(h), jnp.eye(d))
         return r, dmat - m / omega
 
     def chord(self, vector_field, z, args, period, n_periods, scale, jacobian, steps: int):
@@ -276,27 +278,32 @@ class HarmonicBalance(AbstractOrbitMethod):
         """
         d = scale.shape[0]
         omega = 2.0 * jnp.pi / (n_periods * period)
-        a_s = jnp.asarray(jacobian) / omega
-        k = jnp.arange(1, self.harmonics + 1)
-        blocks = 1j * k[:, None, None] * jnp.eye(d)[None] - a_s[None].astype(complex)
+        if self.second_order:
+            b0, blocks = second.chord_blocks(jacobian, int(self.harmonics), d, omega, scale)
+            d = self.width(d)
+        else:
+            b0 = -jnp.asarray(jacobian) / omega
+            k = jnp.arange(1, self.harmonics + 1)
+            blocks = 1j * k[:, None, None] * jnp.eye(d)[None] + b0[None].astype(complex)
 
         def step(zz, _):
             r0, ra, rb = self._unpack(self.residual(vector_field, zz, args, period,
                                                     n_periods, scale), d)
             dz = jnp.linalg.solve(blocks, (ra - 1j * rb)[..., None])[..., 0]
-            d0 = jnp.linalg.solve(-a_s, r0)
+            d0 = jnp.linalg.solve(b0, r0)
             new = zz - jnp.concatenate([d0, dz.real.reshape(-1), (-dz.imag).reshape(-1)])
             return new, new
 
         return jax.lax.scan(step, z, None, length=int(steps))[1]
 
-    def initial_state(self, z, scale):
+    def initial_state(self, z, period, n_periods, scale):
         d = scale.shape[0]
-        c0, a, _ = self._unpack(z, d)
+        c0, a, _ = self._unpack(self._full(z, period, n_periods, scale), d)
         return (c0 + jnp.sum(a, axis=0)) * scale
 
     def samples(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         """(ts, ys) on a grid of 8 N points over [0, n T), from the series."""
+        z = self._full(z, period, n_periods, scale)
         d = scale.shape[0]
         n = 8 * self.n_samples
         ts = n_periods * period * jnp.arange(n) / n
@@ -305,6 +312,7 @@ class HarmonicBalance(AbstractOrbitMethod):
     def trajectory(self, vector_field, z, args, period, n_periods, scale, ts,
                    ode_adjoint=None):
         """States at times `ts` from the Fourier series."""
+        z = self._full(z, period, n_periods, scale)
         d = scale.shape[0]
         c0, a, b = self._unpack(z, d)
         omega = 2.0 * jnp.pi / (n_periods * period)
@@ -324,6 +332,10 @@ class HarmonicBalance(AbstractOrbitMethod):
         the high frequencies where they live (there the response is inertia dominated, a
         pure integration). The max over time and states is returned.
         """
+        if self.second_order:
+            return self._first().error_estimate(
+                vector_field, self._full(z, period, n_periods, scale), args, period,
+                n_periods, scale, residual)
         d = scale.shape[0]
         n = 8 * self.n_samples
         t_end = n_periods * period
@@ -348,6 +360,7 @@ class HarmonicBalance(AbstractOrbitMethod):
         for 8 harmonics or fewer).
         A is evaluated on the uniform half-step grid from the series by one inverse FFT,
         so the step matrices are three products of 6 x 6 matrices each."""
+        z = self._full(z, period, n_periods, scale)
         d = scale.shape[0]
         t_end = n_periods * period
         m = _MAGNUS_STEPS if self.n_samples > 32 else _MAGNUS_STEPS // 2

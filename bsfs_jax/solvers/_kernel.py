@@ -93,7 +93,7 @@ def _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol, 
     err = method.error_estimate(vector_field, u[:n], args, period, n_periods, scale,
                                 sol.residual)
     ok = (sol.result == RESULTS.successful) & jnp.all(jnp.isfinite(t_new))
-    state = method.initial_state(u[:n], scale)
+    state = method.initial_state(u[:n], period, n_periods, scale)
     return CorrectedPoint(u, t_new, jnp.concatenate([jac_r, t_new[None, :]]), lu, piv, ok,
                           sol.residual, sol.steps, mono, amps, d_amps[amplitude_index], err,
                           state)
@@ -125,7 +125,7 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
                              max_iter, amplitude_index, u_pred, tangent,
                              (lu, pivots) if use_chord else None)
 
-    return jax.jit(fn)
+    return jax.jit(fn, compiler_options={"xla_backend_optimization_level": 1})
 
 
 def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: int = 1,
@@ -211,7 +211,7 @@ class Kernel:
     def convert(self, point: HostPoint) -> HostPoint:
         """A point of another harmonic count in this kernel's unknowns (host side)."""
         d = int(np.asarray(self.scale).shape[0])
-        old = self.method.with_harmonics((point.u.size - 1) // d // 2)
+        old = self.method.with_harmonics((point.u.size - 1) // self.method.width(d) // 2)
 
         def pad(v):
             v = np.asarray(v)

@@ -41,7 +41,7 @@ class AbstractOrbitMethod(eqx.Module):
         """(R(z), dR/dz)."""
 
     @abc.abstractmethod
-    def initial_state(self, z, scale):
+    def initial_state(self, z, period, n_periods, scale):
         """The orbit's state at t = 0 (system units)."""
 
     @abc.abstractmethod

@@ -163,7 +163,7 @@ def _solve_core(method, vector_field, z0, args, period, scale, n_periods, tol, m
     z = adjoint.attach(_Residual(method, vector_field, n_periods, scale,
                                  adjoint.ode_adjoint()),
                        (args, period), z_star, sol.jacobian)
-    state = method.initial_state(z, scale)
+    state = method.initial_state(z, period, n_periods, scale)
     err = method.error_estimate(vector_field, z_star, jax.lax.stop_gradient(args),
                                 jax.lax.stop_gradient(period), n_periods, scale,
                                 sol.residual)

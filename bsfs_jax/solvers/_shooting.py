@@ -152,7 +152,7 @@ class Shooting(AbstractOrbitMethod):
         ends = jax.vmap(seg)(zs, t[:-1], t[1:])
         return (ends - jnp.roll(zs, -1, axis=0)).reshape(-1)
 
-    def initial_state(self, z, scale):
+    def initial_state(self, z, period, n_periods, scale):
         return z[: scale.shape[0]] * scale
 
     def monodromy(self, vector_field, z, args, period, n_periods, scale, jacobian):
