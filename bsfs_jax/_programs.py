@@ -279,11 +279,8 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             return None
         return key, static, treedef, leaves, folder
 
-    @functools.wraps(fn)
-    def call(*args, **kwargs):
-        prep = prepare(args, kwargs)
-        if prep is None:
-            return jitted(*args, **kwargs)
+    def obtain(prep):
+        """The kept program's caller for a prepared call, or None (not exportable)."""
         key, static, treedef, leaves, folder = prep
         caller = _loaded.get(key)
         if caller is None and key in _pending:
@@ -299,10 +296,25 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             except Exception as exc:  # noqa: BLE001 - not exportable: the plain program
                 _log.debug("%s not kept: %r", fn.__qualname__, exc)
                 failed.add(key)
-                return jitted(*args, **kwargs)
+                return None
             _loaded[key] = caller
             _hand_off()
-        return caller(*leaves)
+        return caller
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        prep = prepare(args, kwargs)
+        caller = None if prep is None else obtain(prep)
+        return jitted(*args, **kwargs) if caller is None else caller(*prep[3])
+
+    def bind(*args, **kwargs):
+        """For many calls whose arrays change but whose static parts and layout do not
+        (a continuation's corrector): the kept program as a function of the flat array
+        leaves of `(args, kwargs)` (`jax.tree_util.tree_leaves` order), obtained once, so
+        that each call skips the key and the partition; None where the plain program is
+        used (then call `call` or a jit of your own)."""
+        prep = prepare(args, kwargs)
+        return None if prep is None else obtain(prep)
 
     def prefetch(*args, **kwargs) -> bool:
         """Trace, export and compile the program of `call(*args, **kwargs)` on a
@@ -348,6 +360,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
         return True
 
     call.plain = jitted
+    call.bind = bind
     call.prefetch = prefetch
     call.prefetch_now = prefetch_now
     call.keeps = keeps

@@ -15,7 +15,9 @@ from bsfs_jax.solvers import (
     ImplicitReverse,
     Shooting,
     SolverError,
+    SolverSettings,
     classify_multipliers,
+    integrate,
     periodic_orbit,
 )
 
@@ -237,6 +239,32 @@ def test_second_order_harmonic_balance_is_the_first_order_one(bsfs_point):
             r, j = two.residual_and_jacobian(vf, z, args, period, 1, scale)
             assert float(jnp.max(jnp.abs(r - r_ad))) <= 1e-12
             assert float(jnp.max(jnp.abs(j - j_ad))) <= 1e-13 * float(jnp.max(jnp.abs(j_ad)))
+
+
+def test_start_from_a_period_of_samples_is_the_integrated_start():
+    """`init_from_samples` (states over one period, e.g. a transient's last one: no
+    program) gives harmonic balance the start `init` integrates, in both forms, and
+    shooting the first (or each segment's) state."""
+    period = 2 * np.pi / DUFFING[4]
+    y0 = jnp.array([0.5, 0.1])
+    ts = period * jnp.arange(32) / 32  # the AFT grid of 8 harmonics (4 H samples)
+    ys = np.asarray(integrate(duffing, y0, DUFFING, 0.0, period, ts,
+                              SolverSettings(rtol=1e-12, atol=1e-12, solver="dopri8")).ys)
+    scale = jnp.array([0.5, 2.0])
+    for so in (False, True):
+        hb = HarmonicBalance(harmonics=8, second_order=so)
+        z_int = hb.init(duffing, y0, DUFFING, period, 1, scale)
+        z_smp = hb.init_from_samples(ys, scale)
+        assert z_smp.shape == z_int.shape == (hb.size(2),)
+        np.testing.assert_allclose(z_smp, z_int, rtol=0, atol=1e-9)
+    # More harmonics than the grid holds: those beyond it start at zero.
+    wide = HarmonicBalance(harmonics=40).init_from_samples(ys, scale).reshape(-1, 2)
+    assert np.all(wide[1 + 15:41] == 0) and np.all(wide[41 + 15:] == 0)
+    assert np.all(wide[1:16] != 0)
+    np.testing.assert_allclose(Shooting().init_from_samples(ys, scale), ys[0] / scale)
+    np.testing.assert_allclose(Shooting(segments=4).init_from_samples(ys, scale),
+                               (ys[::8] / np.asarray(scale)[None]).reshape(-1))
+    assert Shooting(segments=5).init_from_samples(ys, scale) is None
 
 
 def test_second_order_chord_converges_to_the_orbit():

@@ -196,9 +196,13 @@ def run_continue(args) -> int:
           f"{args.force:g} N ...", flush=True)
     # Only a start for the corrector: the forward-only fused loop compiles in about half
     # the time of diffrax's general loop (the orbit is then corrected by the chosen method).
-    guess = simulate(params, frequency_hz=args.start, force_n=args.force,
-                     transient_periods=args.transient_periods, periods=1,
-                     samples_per_period=64, solver="dopri5-fused").final_state
+    # The transient's last period (4 H samples): harmonic balance starts from its Fourier
+    # coefficients, with no program of its own to integrate one (`init_from_samples`).
+    spp = max(64, 4 * harmonics)
+    traj = simulate(params, frequency_hz=args.start, force_n=args.force,
+                    transient_periods=args.transient_periods, periods=1,
+                    samples_per_period=spp, solver="dopri5-fused")
+    guess = np.concatenate([np.asarray(traj.displacement), np.asarray(traj.velocity)], axis=1)[:spp]
 
 
     def run(method):

@@ -228,9 +228,14 @@ def run(args) -> int:
         p, _, force = row(y)
         try:
             lo, hi = (x[0], x[-1]) if args.band is None else args.band
-            guess = simulate(p, frequency_hz=lo, force_n=force,
-                             transient_periods=args.transient, periods=1,
-                             samples_per_period=64).final_state
+            # The transient's last period: harmonic balance starts from its Fourier
+            # coefficients (`init_from_samples`), shooting from its first state.
+            spp = max(64, 4 * args.harmonics)
+            traj = simulate(p, frequency_hz=lo, force_n=force,
+                            transient_periods=args.transient, periods=1,
+                            samples_per_period=spp)
+            guess = np.concatenate([np.asarray(traj.displacement),
+                                    np.asarray(traj.velocity)], axis=1)[:spp]
             family = bsfs_family(p, force)
             branch, why = continue_by_method(
                 lambda method: continue_orbits(family, guess, lo, hi, method=method,

@@ -56,7 +56,10 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
       traced, so new values do not recompile); may carry `vector_field` and `scale`, and
       `prepare()`, returning the same family with the work that does not depend on p done
       once (called once, before the corrector; `_kernel.prepare_outside`).
-    - `y_guess`: a state near the orbit at p_start, t = 0 (the end of a transient).
+    - `y_guess`: a state near the orbit at p_start, t = 0 (the end of a transient); or
+      states (N, d) at N equally spaced times over [0, n T) (the last period of a
+      transient), from which harmonic balance takes its start's coefficients without
+      integrating (`init_from_samples`).
     - `p_start`, `p_stop`: the run stops once p leaves the interval between them (it may
       fold back and forth inside); with `trim` the last point is moved onto the bound.
     - `method`: `Shooting()` (default) or `HarmonicBalance(harmonics=H)`; the first orbit
@@ -92,9 +95,13 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     ds_min = ds / 1000 if ds_min is None else float(ds_min)
     ds_max = 10 * ds if ds_max is None else float(ds_max)
     family = prepare_outside(float_leaves_to_arrays(family))
-    y_guess = jnp.asarray(y_guess, dtype=float)
-    if not np.all(np.isfinite(np.asarray(y_guess))):
-        raise ValueError(f"y_guess must be finite, got {y_guess}")
+    samples = np.asarray(y_guess, dtype=float)
+    if not np.all(np.isfinite(samples)) or samples.ndim not in (1, 2) or (
+            samples.ndim == 2 and samples.shape[0] < 2):
+        raise ValueError(f"y_guess must be a finite state, or finite states at N >= 2 "
+                         f"times over one orbit period, got {samples}")
+    y_guess = jnp.asarray(samples[0] if samples.ndim == 2 else samples)
+    samples = samples if samples.ndim == 2 else None
     if scale is None:
         scale = getattr(family, "scale", None)
     scale = default_scale(y_guess) if scale is None else jnp.broadcast_to(
@@ -106,7 +113,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     kernel = Kernel(family, vector_field, method, scale, p_scale, n_periods, tol, max_newton,
                     amplitude_index)
     traces_before = TRACE_COUNTS["corrector"]
-    kernel, first = _first_point(kernel, y_guess, p_start, normalise)
+    kernel, first = _first_point(kernel, y_guess, p_start, normalise, samples)
     first = first.oriented(direction)
 
     bar = None
@@ -265,16 +272,17 @@ def _size(kernel) -> int:
     return kernel.method.size(d) + 1
 
 
-def _first_point(kernel, y_guess, p_start, normalise):
+def _first_point(kernel, y_guess, p_start, normalise, samples=None):
     """(kernel, point): the orbit at p_start, corrected by the continuation's own program.
 
     The method's start (`init`: for harmonic balance one period integrated from the
-    guess) is corrected at fixed p (tangent e_q); for harmonic balance the harmonic count
-    is doubled while the error estimate is above tolerance. A first orbit by the same
-    program as every later one spares compiling `periodic_orbit`'s (1.4 s for harmonic
-    balance, 3.4 s for shooting with dopri8); only where the corrector's few Newton steps
-    do not converge from the guess does `periodic_orbit` (more steps) find it first. With
-    `normalise` the state scale is multiplied by the rms of the first orbit's scaled state
+    guess; `init_from_samples` where the caller gave that period's states) is corrected
+    at fixed p (tangent e_q); for harmonic balance the harmonic count is doubled while the
+    error estimate is above tolerance. A first orbit by the same program as every later
+    one spares compiling `periodic_orbit`'s (1.4 s for harmonic balance, 3.4 s for
+    shooting with dopri8); only where the corrector's few Newton steps do not converge
+    from the guess does `periodic_orbit` (more steps) find it first. With `normalise` the
+    state scale is multiplied by the rms of the first orbit's scaled state
     (the scale is an argument of the program: no recompile)."""
     family, vector_field, method = kernel.family, kernel.vector_field, kernel.method
     p_scale, scale, n_periods = kernel.p_scale, kernel.scale, kernel.n_periods
@@ -285,7 +293,10 @@ def _first_point(kernel, y_guess, p_start, normalise):
         e[-1] = 1.0
         return k.correct(np.concatenate([z, [p_start / p_scale]]), e)
 
-    z0 = np.asarray(_init_jit(method, vector_field, y_guess, args0, period0, n_periods, scale))
+    z0 = None if samples is None else method.init_from_samples(samples, scale)
+    if z0 is None:
+        z0 = np.asarray(_init_jit(method, vector_field, y_guess, args0, period0, n_periods,
+                                  scale))
     pt = correct(kernel, z0) if np.all(np.isfinite(z0)) else None
     while pt is not None and pt.converged and not pt.accurate \
             and isinstance(kernel.method, HarmonicBalance) \

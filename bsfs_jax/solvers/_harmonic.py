@@ -41,6 +41,7 @@ sorting heuristic that fails near bifurcations, where the answer matters most.
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import _harmonic_second as second
 from ._aft_layout import aft_jacobian_layout, chained_layout, derivative_blocks
@@ -182,6 +183,23 @@ class HarmonicBalance(AbstractOrbitMethod):
         z = self._to_coeffs(zs)
         return second.positions(z, int(self.harmonics), zs.shape[1]) if self.second_order \
             else z
+
+    def init_from_samples(self, ys, scale):
+        """The samples' Fourier coefficients (numpy: no program), harmonics beyond the
+        grid's Nyquist limit zero: the same start as `init` where ys is one period of the
+        flow from the guess, without integrating it."""
+        ys, scale = np.asarray(ys, dtype=float), np.asarray(scale, dtype=float)
+        n, d = ys.shape
+        h = int(self.harmonics)
+        k = min(h, (n - 1) // 2)
+        spec = np.fft.rfft(ys / scale, axis=0)
+        a, b = np.zeros((h, d)), np.zeros((h, d))
+        a[:k], b[:k] = 2.0 * spec[1:k + 1].real / n, -2.0 * spec[1:k + 1].imag / n
+        c0 = spec[0].real / n
+        if self.second_order:
+            m = self.width(d)
+            c0, a, b = c0[:m], a[:, :m], b[:, :m]
+        return np.concatenate([c0, a.reshape(-1), b.reshape(-1)])
 
     def from_coefficients(self, other: "HarmonicBalance", z, d, xp=jnp):
         """Unknowns of this method from another HB's unknowns (padding or truncating).

@@ -1,4 +1,9 @@
-"""The continuation's jitted corrector: one function per (family, field, method)."""
+"""The continuation's jitted corrector: one function per (family, field, method).
+
+Where jax's persistent cache is on (the CLI), the corrector is also a kept program
+(`bsfs_jax._programs.cached_jit`): a warm `bsfs continue`, `map`, `sensitivity` or
+`predict` loads it instead of tracing it again; elsewhere (the library's default) it is
+`jax.jit` of a closure over the static parts. Both compile at XLA's backend level 1."""
 
 import collections
 import dataclasses
@@ -10,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._programs import FAST_COMPILE, cached_jit
 from ._branch import HostPoint, as_host
 from ._newton import newton
 from ._orbit import orbit_amplitudes
@@ -125,7 +131,44 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
                              max_iter, amplitude_index, u_pred, tangent,
                              (lu, pivots) if use_chord else None)
 
-    return jax.jit(fn, compiler_options={"xla_backend_optimization_level": 1})
+    return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
+
+
+@cached_jit(fast_compile=True)
+def _kept_corrector(family, scale, p_scale, tol, u_pred, tangent, lu, pivots, vector_field,
+                    method, n_periods, max_iter, amplitude_index, use_chord):
+    """`_correct_core` as a kept program (arrays traced, the rest static): its fields as a
+    tuple of arrays (what `jax.export` writes)."""
+    pt = _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol,
+                       max_iter, amplitude_index, u_pred, tangent,
+                       (lu, pivots) if use_chord else None)
+    return tuple(getattr(pt, f.name) for f in dataclasses.fields(pt))
+
+
+def _corrector_call(family, vector_field, method, n_periods, max_iter, amplitude_index,
+                    use_chord, example):
+    """A function of (scale, p_scale, tol, u_pred, tangent, lu, pivots) -> CorrectedPoint:
+    the kept program where there is one, else the cached `jax.jit` (`_compiled`).
+    `example`: arguments of the right layout (used only where the program is exported)."""
+    statics = (vector_field, method, int(n_periods), int(max_iter), int(amplitude_index),
+               bool(use_chord))
+    kept = _kept_corrector.bind(family, *example, *statics)
+    if kept is not None:
+        leaves = jax.tree_util.tree_leaves(eqx.filter(family, eqx.is_array))
+        return lambda *xs: CorrectedPoint(*kept(*leaves, *xs))
+    dyn, static = eqx.partition(family, eqx.is_array)
+    fn = _compiled(static, *statics)
+    return lambda *xs: fn(dyn, *xs)
+
+
+def no_chord(n: int):
+    """(lu, pivots) that make the corrector's chord stage stop at once (NaN), placed on
+    the device as a previous point's matrices are (its output, committed there): the
+    program compiled for the first point serves the chord calls that follow (with numpy
+    placeholders jit compiled the corrector a second time, 1.9 s)."""
+    dev = jax.devices()[0]
+    return (jax.device_put(np.full((n, n), np.nan), dev),
+            jax.device_put(np.arange(n, dtype=np.int32), dev))
 
 
 def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: int = 1,
@@ -150,11 +193,16 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
         z = eqx.filter_eval_shape(lambda: _init_core(method, vector_field, y, *fam(float(p)),
                                                      n_periods, scale))
         n = z.shape[0] + 1
+        example = (scale, np.asarray(1.0), np.asarray(1e-8), np.zeros(n), np.zeros(n),
+                   *no_chord(n))
+        statics = (vector_field, method, int(n_periods), int(max_newton),
+                   int(amplitude_index), bool(method.uses_chord))
+        if _kept_corrector.keeps(fam, *example, *statics):
+            # The kept program's own prefetch (queued next; its `bind` later waits for it).
+            _kept_corrector.prefetch_now(fam, *example, *statics)
+            return
         dyn, static = eqx.partition(fam, eqx.is_array)
-        fn = _compiled(static, vector_field, method, int(n_periods), int(max_newton),
-                       int(amplitude_index), bool(method.uses_chord))
-        fn.lower(dyn, scale, np.asarray(1.0), np.asarray(1e-8), np.zeros(n), np.zeros(n),
-                 np.full((n, n), np.nan), np.arange(n, dtype=np.int32)).compile()
+        _compiled(static, *statics).lower(dyn, *example).compile()
 
     return in_background(job)
 
@@ -174,7 +222,6 @@ class Kernel:
     amplitude_index: int
     calls: int = 0
     _fn: object = None
-    _dyn: object = None
     _no_chord: object = None
 
     @property
@@ -193,20 +240,20 @@ class Kernel:
             lu, piv = chord.lu
         else:  # no chord matrix: NaN makes the chord stage stop at once (same trace)
             if self._no_chord is None or self._no_chord[0].shape[0] != n:
-                self._no_chord = (np.full((n, n), np.nan), np.arange(n, dtype=np.int32))
+                self._no_chord = no_chord(n)
             lu, piv = self._no_chord
+        args = (self.scale, np.asarray(self.p_scale, dtype=float),
+                np.asarray(self.tol, dtype=float), u_pred, np.asarray(tangent, dtype=float),
+                lu, piv)
         if self._fn is None:
-            dyn, static = eqx.partition(self.family, eqx.is_array)
-            self._dyn = dyn
-            self._fn = _compiled(static, self.vector_field, self.method, int(self.n_periods),
-                                 int(self.max_newton), int(self.amplitude_index), use_chord)
-        pt = self._fn(self._dyn, self.scale, np.asarray(self.p_scale, dtype=float),
-                      np.asarray(self.tol, dtype=float), u_pred,
-                      np.asarray(tangent, dtype=float), lu, piv)
+            self._fn = _corrector_call(self.family, self.vector_field, self.method,
+                                       self.n_periods, self.max_newton,
+                                       self.amplitude_index, use_chord, args)
+        pt = self._fn(*args)
         return as_host(pt, self.accurate_tol, ds_used)
 
     def with_method(self, method) -> "Kernel":
-        return dataclasses.replace(self, method=method, _fn=None, _dyn=None, _no_chord=None)
+        return dataclasses.replace(self, method=method, _fn=None, _no_chord=None)
 
     def convert(self, point: HostPoint) -> HostPoint:
         """A point of another harmonic count in this kernel's unknowns (host side)."""

@@ -32,6 +32,12 @@ class AbstractOrbitMethod(eqx.Module):
     def init(self, vector_field, y_guess, args, period, n_periods, scale):
         """Unknowns from a state guess at t = 0 (mod T)."""
 
+    def init_from_samples(self, ys, scale):
+        """Unknowns from states `ys` (N, d) at N equally spaced times over [0, n T) (the
+        last period of a transient), on the host, without integrating; None where the
+        method cannot (then `init` from ys[0])."""
+        return None
+
     @abc.abstractmethod
     def residual(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         """R(z), zero on the orbit."""

@@ -17,6 +17,7 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._integrate import SolverSettings, integrate
 from ._method import AbstractOrbitMethod
@@ -132,6 +133,15 @@ class Shooting(AbstractOrbitMethod):
         t = self._times(period, n_periods)
         zs = flow(vector_field, z0, args, scale, t[0], t[-1], t[:-1], self.settings)
         return zs.reshape(-1)
+
+    def init_from_samples(self, ys, scale):
+        """Single shooting: the first sample, scaled; multiple shooting: the samples at the
+        segment starts where the grid holds them."""
+        ys, scale = np.asarray(ys, dtype=float), np.asarray(scale, dtype=float)
+        n, m = ys.shape[0], int(self.segments)
+        if n % m:
+            return None
+        return (ys[::n // m] / scale).reshape(-1)
 
     def residual_and_jacobian(self, vector_field, z, args, period, n_periods, scale):
         """(R(z), dR/dz) by forward mode through the flow (one pass per unknown)."""
