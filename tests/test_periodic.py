@@ -265,6 +265,9 @@ def test_start_from_a_period_of_samples_is_the_integrated_start():
     np.testing.assert_allclose(Shooting(segments=4).init_from_samples(ys, scale),
                                (ys[::8] / np.asarray(scale)[None]).reshape(-1))
     assert Shooting(segments=5).init_from_samples(ys, scale) is None
+    # One state is a start for single shooting only.
+    assert HarmonicBalance(harmonics=8).init_from_samples(ys[:1], scale) is None
+    assert Shooting(segments=2).init_from_samples(ys[:1], scale) is None
 
 
 def test_second_order_chord_converges_to_the_orbit():

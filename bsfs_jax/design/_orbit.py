@@ -314,8 +314,10 @@ def frc_point_values(params, force_n, hint: PeakHint, adjoint=ImplicitReverse())
 
 def point_hint(point, branch) -> PeakHint:
     """`PeakHint` at a located point of `branch` (its peak's or a fold's `HostPoint`)."""
-    return PeakHint(jnp.asarray(point.u), jnp.asarray(point.tangent),
-                    jnp.asarray(point.jacobian), jnp.asarray(branch.scale),
+    # numpy (uncommitted), as `peak_hint_layout` lays them out: the prefetched programs
+    # then serve the located hint (the corrector's matrices may be committed arrays)
+    return PeakHint(np.asarray(point.u), np.asarray(point.tangent),
+                    np.asarray(point.jacobian), np.asarray(branch.scale),
                     jnp.asarray(branch.info["p_scale"]),
                     jnp.asarray(point.p(branch.info["p_scale"])), branch.method)
 

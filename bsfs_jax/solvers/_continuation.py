@@ -293,7 +293,9 @@ def _first_point(kernel, y_guess, p_start, normalise, samples=None):
         e[-1] = 1.0
         return k.correct(np.concatenate([z, [p_start / p_scale]]), e)
 
-    z0 = None if samples is None else method.init_from_samples(samples, scale)
+    # From the samples, or (single shooting) from the state itself: no program.
+    z0 = method.init_from_samples(np.asarray(y_guess)[None] if samples is None else samples,
+                                  np.asarray(scale))
     if z0 is None:
         z0 = np.asarray(_init_jit(method, vector_field, y_guess, args0, period0, n_periods,
                                   scale))

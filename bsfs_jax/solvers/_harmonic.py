@@ -190,6 +190,8 @@ class HarmonicBalance(AbstractOrbitMethod):
         flow from the guess, without integrating it."""
         ys, scale = np.asarray(ys, dtype=float), np.asarray(scale, dtype=float)
         n, d = ys.shape
+        if n < 4:  # not a period's worth: integrate one from the first state (`init`)
+            return None
         h = int(self.harmonics)
         k = min(h, (n - 1) // 2)
         spec = np.fft.rfft(ys / scale, axis=0)

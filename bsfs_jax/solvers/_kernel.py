@@ -147,28 +147,34 @@ def _kept_corrector(family, scale, p_scale, tol, u_pred, tangent, lu, pivots, ve
 
 def _corrector_call(family, vector_field, method, n_periods, max_iter, amplitude_index,
                     use_chord, example):
-    """A function of (scale, p_scale, tol, u_pred, tangent, lu, pivots) -> CorrectedPoint:
-    the kept program where there is one, else the cached `jax.jit` (`_compiled`).
-    `example`: arguments of the right layout (used only where the program is exported)."""
+    """(fn, kept): fn a function of (scale, p_scale, tol, u_pred, tangent, lu, pivots) ->
+    CorrectedPoint, the kept program where there is one (kept True), else the cached
+    `jax.jit` (`_compiled`). `example`: arguments of the right layout (used only where
+    the program is exported)."""
     statics = (vector_field, method, int(n_periods), int(max_iter), int(amplitude_index),
                bool(use_chord))
     kept = _kept_corrector.bind(family, *example, *statics)
     if kept is not None:
         leaves = jax.tree_util.tree_leaves(eqx.filter(family, eqx.is_array))
-        return lambda *xs: CorrectedPoint(*kept(*leaves, *xs))
+        return (lambda *xs: CorrectedPoint(*kept(*leaves, *xs))), True
     dyn, static = eqx.partition(family, eqx.is_array)
     fn = _compiled(static, *statics)
-    return lambda *xs: fn(dyn, *xs)
+    return (lambda *xs: fn(dyn, *xs)), False
 
 
-def no_chord(n: int):
-    """(lu, pivots) that make the corrector's chord stage stop at once (NaN), placed on
-    the device as a previous point's matrices are (its output, committed there): the
-    program compiled for the first point serves the chord calls that follow (with numpy
-    placeholders jit compiled the corrector a second time, 1.9 s)."""
+def no_chord(n: int, committed: bool = False):
+    """(lu, pivots) that make the corrector's chord stage stop at once (NaN), placed as a
+    previous point's matrices are, so that the program compiled for the first point serves
+    the chord calls that follow: `committed` (on the device) for the kept program, whose
+    outputs are committed there (numpy placeholders made jit compile it a second time,
+    1.9 s); numpy for the plain jit, whose outputs from uncommitted inputs stay
+    uncommitted (committed placeholders there made every output committed, and the
+    design's programs, prefetched for numpy hints, compile twice)."""
+    lu, piv = np.full((n, n), np.nan), np.arange(n, dtype=np.int32)
+    if not committed:
+        return lu, piv
     dev = jax.devices()[0]
-    return (jax.device_put(np.full((n, n), np.nan), dev),
-            jax.device_put(np.arange(n, dtype=np.int32), dev))
+    return jax.device_put(lu, dev), jax.device_put(piv, dev)
 
 
 def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: int = 1,
@@ -193,16 +199,16 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
         z = eqx.filter_eval_shape(lambda: _init_core(method, vector_field, y, *fam(float(p)),
                                                      n_periods, scale))
         n = z.shape[0] + 1
-        example = (scale, np.asarray(1.0), np.asarray(1e-8), np.zeros(n), np.zeros(n),
-                   *no_chord(n))
+        head = (scale, np.asarray(1.0), np.asarray(1e-8), np.zeros(n), np.zeros(n))
         statics = (vector_field, method, int(n_periods), int(max_newton),
                    int(amplitude_index), bool(method.uses_chord))
+        example = (*head, *no_chord(n, committed=True))
         if _kept_corrector.keeps(fam, *example, *statics):
             # The kept program's own prefetch (queued next; its `bind` later waits for it).
             _kept_corrector.prefetch_now(fam, *example, *statics)
             return
         dyn, static = eqx.partition(fam, eqx.is_array)
-        _compiled(static, *statics).lower(dyn, *example).compile()
+        _compiled(static, *statics).lower(dyn, *head, *no_chord(n)).compile()
 
     return in_background(job)
 
@@ -222,6 +228,7 @@ class Kernel:
     amplitude_index: int
     calls: int = 0
     _fn: object = None
+    _kept: bool = False
     _no_chord: object = None
 
     @property
@@ -235,25 +242,24 @@ class Kernel:
         u_pred = np.asarray(u_pred, dtype=float)
         n = u_pred.shape[0]
         use_chord = bool(self.method.uses_chord)
+        head = (self.scale, np.asarray(self.p_scale, dtype=float),
+                np.asarray(self.tol, dtype=float), u_pred, np.asarray(tangent, dtype=float))
+        if self._fn is None:
+            self._fn, self._kept = _corrector_call(
+                self.family, self.vector_field, self.method, self.n_periods,
+                self.max_newton, self.amplitude_index, use_chord, (*head, *no_chord(n)))
         if use_chord and chord is not None and chord.lu is not None and \
                 chord.lu[0].shape[0] == n:
             lu, piv = chord.lu
         else:  # no chord matrix: NaN makes the chord stage stop at once (same trace)
             if self._no_chord is None or self._no_chord[0].shape[0] != n:
-                self._no_chord = no_chord(n)
+                self._no_chord = no_chord(n, committed=self._kept)
             lu, piv = self._no_chord
-        args = (self.scale, np.asarray(self.p_scale, dtype=float),
-                np.asarray(self.tol, dtype=float), u_pred, np.asarray(tangent, dtype=float),
-                lu, piv)
-        if self._fn is None:
-            self._fn = _corrector_call(self.family, self.vector_field, self.method,
-                                       self.n_periods, self.max_newton,
-                                       self.amplitude_index, use_chord, args)
-        pt = self._fn(*args)
+        pt = self._fn(*head, lu, piv)
         return as_host(pt, self.accurate_tol, ds_used)
 
     def with_method(self, method) -> "Kernel":
-        return dataclasses.replace(self, method=method, _fn=None, _no_chord=None)
+        return dataclasses.replace(self, method=method, _fn=None, _kept=False, _no_chord=None)
 
     def convert(self, point: HostPoint) -> HostPoint:
         """A point of another harmonic count in this kernel's unknowns (host side)."""
