@@ -62,6 +62,9 @@ _loaded: dict[str, object] = {}  # key -> jitted caller of the deserialised prog
 _pending: dict[str, Future] = {}  # key -> a prefetch's future caller (`prefetch`)
 _queue: queue.SimpleQueue | None = None  # the prefetch worker's jobs
 _waiting: list[threading.Event] = []  # prefetches waiting for the next hand-off to XLA
+# One export at a time: two threads exporting at once made one fail inside jax
+# ("StoreException: Store occupied"; the continuation's corrector was then not kept).
+_export_lock = threading.Lock()
 
 
 @functools.cache
@@ -161,8 +164,9 @@ def _export(fn, static, treedef, leaves):
              for x in leaves]
     # Only this jax version ever reads the file back: custom calls without a
     # cross-version guarantee (LAPACK on CPU) are fine.
-    return export.export(jax.jit(flat), disabled_checks=[
-        export.DisabledSafetyCheck.custom_call(".*")])(*specs)
+    with _export_lock:
+        return export.export(jax.jit(flat), disabled_checks=[
+            export.DisabledSafetyCheck.custom_call(".*")])(*specs)
 
 
 #: XLA's options for `cached_jit(..., fast_compile=True)` (module docstring).

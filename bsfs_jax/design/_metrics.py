@@ -24,7 +24,12 @@ import numpy as np
 from .._numerics import float_array
 from ..machine import linear_frf, modes
 from ..model import Sinusoid, build_system, vector_field
-from ..solvers import SHOOTING_SETTINGS, ImplicitReverse, variational_monodromy
+from ..solvers import (
+    SHOOTING_SETTINGS,
+    ImplicitForward,
+    ImplicitReverse,
+    variational_monodromy,
+)
 from ._catalogue import METRIC_INFO, MetricInfo
 from ._orbit import (
     OrbitSettings,
@@ -59,13 +64,17 @@ class Metric(MetricInfo):
       (finite differences); None where `locate` has nothing to reuse;
     - `hint_layout(params, op, settings)`: a hint laid out as `locate` will return it
       (values meaningless) where that is known before the search, else None (for
-      compiling `fn`'s programs while the search runs).
+      compiling `fn`'s programs while the search runs);
+    - `forward_fn`: `fn` differentiable in forward mode (its implicit derivatives by
+      `ImplicitForward`), where its gradient is cheaper to compile that way (the FRC
+      peak: 6 s instead of 12 s for 16 parameters, the same numbers); None: reverse mode.
     """
 
     fn: Callable = dataclasses.field(repr=False, compare=False)
     locate: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
     locate_near: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
     hint_layout: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
+    forward_fn: Callable | None = dataclasses.field(default=None, repr=False, compare=False)
 
 
 # -- static metrics ---------------------------------------------------------------------
@@ -191,34 +200,42 @@ def _locate_frc_near(params, op, settings, near=None):
 
 
 def frc_peak(params, op: OperatingPoint, settings: OrbitSettings = OrbitSettings(),
-             hint=None):
+             hint=None, adjoint=None):
     """Peak nut amplitude [m] of the frequency-response curve near the first resonance at
     force `op.force_n`. `hint` is the located peak (`Metric.locate`); the value is
-    differentiable by the implicit function theorem (`_orbit.frc_peak_value`)."""
+    differentiable by the implicit function theorem (`_orbit.frc_peak_value`; `adjoint`
+    `ImplicitReverse()` by default, `ImplicitForward()` for forward mode)."""
     if hint is None:
         hint = _locate_frc(params, op, settings)
-    return frc_peak_value(params, op.force_n, hint)
+    return frc_peak_value(params, op.force_n, hint,
+                          ImplicitReverse() if adjoint is None else adjoint)
+
+
+def _frc_peak_forward(params, op, settings=OrbitSettings(), hint=None):
+    return frc_peak(params, op, settings, hint, ImplicitForward())
 
 
 def _frc_hint_layout(params, op, settings):
     return peak_hint_layout(params, op.force_n, settings)
 
 
-# The functions of each metric in `METRIC_INFO`: (fn, locate, locate_near, hint_layout).
+# The functions of each metric in `METRIC_INFO`:
+# (fn, locate, locate_near, hint_layout, forward_fn).
 _FUNCTIONS = {
-    "frc_peak": (frc_peak, _locate_frc, _locate_frc_near, _frc_hint_layout),
-    "amplitude": (orbit_amplitude, None, None, None),
-    "natural_frequency": (natural_frequency, None, None, None),
-    "static_stiffness": (static_stiffness, None, None, None),
-    "floquet": (floquet_modulus, None, None, None),
-    "thermal_error": (thermal_error, None, None, None),
-    "frf_peak": (frf_peak, None, None, None),
+    "frc_peak": (frc_peak, _locate_frc, _locate_frc_near, _frc_hint_layout,
+                 _frc_peak_forward),
+    "amplitude": (orbit_amplitude, None, None, None, None),
+    "natural_frequency": (natural_frequency, None, None, None, None),
+    "static_stiffness": (static_stiffness, None, None, None, None),
+    "floquet": (floquet_modulus, None, None, None, None),
+    "thermal_error": (thermal_error, None, None, None, None),
+    "frf_peak": (frf_peak, None, None, None, None),
 }
 METRICS: dict[str, Metric] = {
     name: Metric(**dataclasses.asdict(info), fn=fn, locate=locate, locate_near=near,
-                 hint_layout=layout)
+                 hint_layout=layout, forward_fn=forward)
     for name, info in METRIC_INFO.items()
-    for fn, locate, near, layout in (_FUNCTIONS[name],)
+    for fn, locate, near, layout, forward in (_FUNCTIONS[name],)
 }
 
 

@@ -63,8 +63,17 @@ def _value(theta, params, op, hint=None, *, metric_name, names, settings):
 
 
 def _value_and_grad(theta, params, op, hint=None, *, metric_name, names, settings):
-    return jax.value_and_grad(_value)(theta, params, op, hint, metric_name=metric_name,
-                                      names=names, settings=settings)
+    forward = get_metric(metric_name).forward_fn
+    if forward is None:
+        return jax.value_and_grad(_value)(theta, params, op, hint, metric_name=metric_name,
+                                          names=names, settings=settings)
+
+    # Forward mode (`Metric.forward_fn`): one tangent per parameter, the value once.
+    def f(th):
+        return forward(with_values(params, names, th), op, settings, hint)
+
+    eye = jnp.eye(theta.shape[0], dtype=theta.dtype)
+    return jax.vmap(lambda t: jax.jvp(f, (theta,), (t,)), out_axes=(None, 0))(eye)
 
 
 # (value, value_and_grad) jitted: kept across processes (the package's own metrics) or not.
