@@ -65,6 +65,11 @@ _waiting: list[threading.Event] = []  # prefetches waiting for the next hand-off
 # One export at a time: two threads exporting at once made one fail inside jax
 # ("StoreException: Store occupied"; the continuation's corrector was then not kept).
 _export_lock = threading.Lock()
+# Keys being obtained by a thread (`cached_jit`'s `obtain`): another thread that needs the
+# same program waits for it instead of exporting and compiling it a second time (the
+# rows of `bsfs map` continue on two threads with one corrector).
+_obtaining: dict[str, Future] = {}
+_obtaining_lock = threading.Lock()
 
 
 @functools.cache
@@ -284,25 +289,48 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
         return key, static, treedef, leaves, folder
 
     def obtain(prep):
-        """The kept program's caller for a prepared call, or None (not exportable)."""
-        key, static, treedef, leaves, folder = prep
+        """The kept program's caller for a prepared call, compiled for its arguments, or
+        None (not exportable). One thread obtains a key at a time; the others wait."""
+        key = prep[0]
         caller = _loaded.get(key)
-        if caller is None and key in _pending:
+        if caller is not None:
+            return caller
+        with _obtaining_lock:
+            running = _obtaining.get(key)
+            if running is None:
+                mine = _obtaining[key] = Future()
+        if running is not None:
+            return running.result()
+        caller = None
+        try:
+            caller = obtain_here(prep)
+        finally:
+            if caller is not None:
+                _loaded[key] = caller  # compiled: other threads may call it now
+            with _obtaining_lock:
+                del _obtaining[key]
+            mine.set_result(caller)
+        return caller
+
+    def obtain_here(prep):
+        key, static, treedef, leaves, folder = prep
+        if key in _pending:
             _hand_off()  # the prefetch may still be waiting for this thread
             try:  # a prefetch of this program: wait for it rather than compile it twice
-                caller = _loaded[key] = _pending.pop(key).result()
+                return _pending.pop(key).result()  # compiled by the prefetch
             except Exception as exc:  # noqa: BLE001 - the usual way below
                 _log.debug("%s: prefetch failed: %r", fn.__qualname__, exc)
-                caller = None
-        if caller is None:
-            try:
-                caller = _caller(fn, static, treedef, leaves, key, folder, options)
-            except Exception as exc:  # noqa: BLE001 - not exportable: the plain program
-                _log.debug("%s not kept: %r", fn.__qualname__, exc)
-                failed.add(key)
-                return None
-            _loaded[key] = caller
-            _hand_off()
+        try:
+            caller = _caller(fn, static, treedef, leaves, key, folder, options)
+        except Exception as exc:  # noqa: BLE001 - not exportable: the plain program
+            _log.debug("%s not kept: %r", fn.__qualname__, exc)
+            failed.add(key)
+            return None
+        _hand_off()
+        try:
+            caller.lower(*leaves).compile()  # here, once (jit's cache: the call finds it)
+        except Exception as exc:  # noqa: BLE001 - the call compiles it (or fails) itself
+            _log.debug("%s: compile failed here: %r", fn.__qualname__, exc)
         return caller
 
     @functools.wraps(fn)

@@ -127,6 +127,38 @@ def test_prefetch_compiles_once_and_the_call_uses_it(cache_dir):
     assert not _poly.prefetch(x, data, 4)  # loaded already
 
 
+def test_threads_needing_one_program_compile_it_once(cache_dir, monkeypatch):
+    """Two threads that call one kept program at once (the map's row continuations with
+    one corrector): one exports and compiles it, the other waits for it and computes with
+    it; `bind` gives the same compiled program."""
+    import threading
+
+    monkeypatch.setattr(_programs, "_obtaining", {}, raising=False)
+    x, data = np.linspace(0.0, 1.0, 7), {"w": np.arange(7.0)}
+    want = eqx.filter_jit(_poly.__wrapped__)(x, data, 5)
+    seen = _compiles()
+    barrier = threading.Barrier(2)
+    out = [None, None]
+
+    def work(i):
+        barrier.wait()
+        out[i] = _poly(x, data, 5)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert seen["n"] == 1 and len(_files(cache_dir)) == 1
+    for got in out:
+        np.testing.assert_allclose(got["grad"], want["grad"], rtol=1e-15)
+    run = _poly.bind(x, data, 5)
+    assert seen["n"] == 1
+    np.testing.assert_allclose(run(*jax.tree_util.tree_leaves((x, data)))["value"],
+                               want["value"], rtol=1e-15)
+    assert seen["n"] == 1
+
+
 def test_call_before_any_hand_off_does_not_wait_forever(cache_dir):
     # The prefetch's only chance to start is the call itself, which must release it.
     x, data = np.ones(5), {"w": np.ones(5)}

@@ -247,7 +247,8 @@ class Kernel:
         if self._fn is None:
             self._fn, self._kept = _corrector_call(
                 self.family, self.vector_field, self.method, self.n_periods,
-                self.max_newton, self.amplitude_index, use_chord, (*head, *no_chord(n)))
+                self.max_newton, self.amplitude_index, use_chord,
+                (*head, *no_chord(n, committed=True)))  # as the kept program's calls
         if use_chord and chord is not None and chord.lu is not None and \
                 chord.lu[0].shape[0] == n:
             lu, piv = chord.lu
