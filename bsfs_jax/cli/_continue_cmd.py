@@ -202,8 +202,7 @@ def run_continue(args) -> int:
     traj = simulate(params, frequency_hz=args.start, force_n=args.force,
                     transient_periods=args.transient_periods, periods=1,
                     samples_per_period=spp, solver="dopri5-fused")
-    guess = np.concatenate([np.asarray(traj.displacement), np.asarray(traj.velocity)], axis=1)[:spp]
-
+    guess = traj.host_state()[:spp]
 
     def run(method):
         if method is shooting:

@@ -234,8 +234,7 @@ def run(args) -> int:
             traj = simulate(p, frequency_hz=lo, force_n=force,
                             transient_periods=args.transient, periods=1,
                             samples_per_period=spp)
-            guess = np.concatenate([np.asarray(traj.displacement),
-                                    np.asarray(traj.velocity)], axis=1)[:spp]
+            guess = traj.host_state()[:spp]
             family = bsfs_family(p, force)
             branch, why = continue_by_method(
                 lambda method: continue_orbits(family, guess, lo, hi, method=method,

@@ -50,6 +50,12 @@ class Trajectory(eqx.Module):
         """(..., N, 6) states (x_b, x_s, x_n, v_b, v_s, v_n)."""
         return jnp.concatenate([self.displacement, self.velocity], axis=-1)
 
+    def host_state(self) -> np.ndarray:
+        """`state` as numpy, concatenated on the host (`state` outside jit compiles a
+        program of its own for the concatenation)."""
+        return np.concatenate([np.asarray(self.displacement), np.asarray(self.velocity)],
+                              axis=-1)
+
     @property
     def final_state(self):
         return self.state[..., -1, :]

@@ -7,8 +7,6 @@ import functools
 
 import numpy as np
 
-from . import _harmonic_second as second
-
 
 @functools.lru_cache(maxsize=16)
 def aft_jacobian_layout(h: int, n: int):
@@ -51,8 +49,16 @@ def aft_jacobian_layout(h: int, n: int):
 
 @functools.lru_cache(maxsize=16)
 def chained_layout(h: int, n: int):
-    """`aft_jacobian_layout` permuted for second-order harmonic balance's chain rule."""
-    return second.chain_layout(aft_jacobian_layout(h, n), h)
+    """`aft_jacobian_layout` with its columns permuted for the chain rule of harmonic
+    balance in the positions (`_harmonic_second.assemble`): the column of a^x_k takes
+    b^v_k's entries (factor -1), that of b^x_k takes a^v_k's (+1); c_0 takes none."""
+    w1, w2, c1, c2 = aft_jacobian_layout(h, n)
+    s = 2 * h + 1
+    src = np.zeros(s, np.int64)
+    sign = np.zeros(s)
+    src[1:h + 1], sign[1:h + 1] = np.arange(h + 1, s), -1.0
+    src[h + 1:], sign[h + 1:] = np.arange(1, h + 1), 1.0
+    return w1[:, src], w2[:, src], c1[:, src] * sign, c2[:, src] * sign
 
 
 @functools.lru_cache(maxsize=16)

@@ -197,11 +197,11 @@ class HarmonicBalance(AbstractOrbitMethod):
         spec = np.fft.rfft(ys / scale, axis=0)
         a, b = np.zeros((h, d)), np.zeros((h, d))
         a[:k], b[:k] = 2.0 * spec[1:k + 1].real / n, -2.0 * spec[1:k + 1].imag / n
-        c0 = spec[0].real / n
-        if self.second_order:
-            m = self.width(d)
-            c0, a, b = c0[:m], a[:, :m], b[:, :m]
-        return np.concatenate([c0, a.reshape(-1), b.reshape(-1)])
+        z = np.concatenate([spec[0].real / n, a.reshape(-1), b.reshape(-1)])
+        if not self.second_order:
+            return z
+        self.width(d)  # refuses an odd state size
+        return second.positions(z, h, d)
 
     def from_coefficients(self, other: "HarmonicBalance", z, d, xp=jnp):
         """Unknowns of this method from another HB's unknowns (padding or truncating).

@@ -40,12 +40,10 @@ def expand(z, h: int, d: int, omega, scale):
                             full_b.reshape(-1)])
 
 
-def positions(z_full, h: int, d: int, xp=jnp):
+def positions(z_full, h: int, d: int):
     """The positions' coefficients of first-order coefficients (the inverse of `expand`
-    on its image)."""
-    m = d // 2
-    return z_full.reshape(2 * h + 1, d)[:, :m].reshape(-1) if xp is jnp else \
-        xp.asarray(z_full).reshape(2 * h + 1, d)[:, :m].reshape(-1)
+    on its image; numpy or jax arrays)."""
+    return z_full.reshape(2 * h + 1, d)[:, :d // 2].reshape(-1)
 
 
 def velocity_rows(r_full, h: int, d: int):
@@ -67,24 +65,11 @@ def chord_blocks(jacobian, h: int, d: int, omega, scale):
     return b0, bk
 
 
-
-def chain_layout(layout, h: int):
-    """The AFT layout (w1, w2, c1, c2) with its columns permuted for the chain rule: the
-    column of a^x_k takes b^v_k's entries (factor -1), that of b^x_k takes a^v_k's (+1);
-    c_0 takes none (numpy, static)."""
-    w1, w2, c1, c2 = layout
-    s = 2 * h + 1
-    src = np.zeros(s, np.int64)
-    sign = np.zeros(s)
-    src[1:h + 1], sign[1:h + 1] = np.arange(h + 1, s), -1.0
-    src[h + 1:], sign[h + 1:] = np.arange(1, h + 1), 1.0
-    return w1[:, src], w2[:, src], c1[:, src] * sign, c2[:, src] * sign
-
-
 def assemble(table, layout, chained, h: int, d: int, omega, scale):
     """d(velocity rows)/d(positions' coefficients) from the AFT table of the velocity
     rows of the field's Jacobian (`HarmonicBalance.residual_and_jacobian`: `table`
-    (2N, d/2, d), `layout` its (w1, w2, c1, c2), `chained` = `chain_layout(layout)`).
+    (2N, d/2, d), `layout` its (w1, w2, c1, c2), `chained` its columns permuted,
+    `_aft_layout.chained_layout`).
     The velocity coefficients are linear in the positions' (`expand`), so the chain rule
     permutes columns: the column of a^x_k gains -rho Omega k times the one of b^v_k,
     b^x_k gains rho Omega k times a^v_k; the derivative term +-k between a^v_k and b^v_k

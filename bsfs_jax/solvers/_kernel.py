@@ -245,10 +245,12 @@ class Kernel:
         head = (self.scale, np.asarray(self.p_scale, dtype=float),
                 np.asarray(self.tol, dtype=float), u_pred, np.asarray(tangent, dtype=float))
         if self._fn is None:
+            committed = no_chord(n, committed=True)  # as the kept program's calls pass them
             self._fn, self._kept = _corrector_call(
                 self.family, self.vector_field, self.method, self.n_periods,
-                self.max_newton, self.amplitude_index, use_chord,
-                (*head, *no_chord(n, committed=True)))  # as the kept program's calls
+                self.max_newton, self.amplitude_index, use_chord, (*head, *committed))
+            if self._kept:
+                self._no_chord = committed
         if use_chord and chord is not None and chord.lu is not None and \
                 chord.lu[0].shape[0] == n:
             lu, piv = chord.lu
