@@ -50,6 +50,10 @@ def main():
                    help="SweepConfig.kernel_fast for the kernel engine (1 or 0)")
     p.add_argument("--unroll", type=int, default=1,
                    help="SweepConfig.kernel_unroll for the kernel engine")
+    p.add_argument("--smoke", type=int, default=1, help="run case 1 (1) or not (0)")
+    p.add_argument("--wide", type=int, default=1,
+                   help="VerifySettings.wide of the verified case (1: one lockstep batch per "
+                   "chunk, the accelerator's default; 0: batches of 16)")
     p.add_argument("--variants", type=ints, default=[],
                    help="instead of the cases: time the kernel alone (integrate_lanes) at "
                    "these point counts for each block size in VARIANTS")
@@ -111,18 +115,22 @@ def main():
         return
 
     # 1. smoke: agreement with the fused loop on a short horizon.
+    smoke_points = 64 if args.smoke else 0
     f64 = np.linspace(500.0, 4000.0, 64)
     cfg_k = config(64, "kernel", transient_periods=20, periods=4, samples_per_period=8)
     cfg_m = config(64, "map", transient_periods=20, periods=4, samples_per_period=8)
-    rk, tk = timed(lambda: sweep(problem, f64, config=cfg_k, progress=False))
-    rm, tm = timed(lambda: sweep(problem, f64, config=cfg_m, progress=False))
-    amp = np.asarray(rm.amplitude)[0]
-    dev_s = np.abs(np.asarray(rk.strobe) - np.asarray(rm.strobe))[0].max(axis=1)
-    rel = dev_s / np.maximum(amp, 1e-300)
-    emit({"case": "smoke", "points": 64, "kernel_first_s": tk, "map_first_s": tm,
-          "failed_kernel": int(np.sum(rk.failed)), "failed_map": int(np.sum(rm.failed)),
-          "strobe_rel_dev_median": float(np.median(rel)), "strobe_rel_dev_max": float(rel.max()),
-          "steps_kernel": int(np.sum(rk.num_steps)), "steps_map": int(np.sum(rm.num_steps))})
+    if smoke_points:
+        rk, tk = timed(lambda: sweep(problem, f64, config=cfg_k, progress=False))
+        rm, tm = timed(lambda: sweep(problem, f64, config=cfg_m, progress=False))
+        amp = np.asarray(rm.amplitude)[0]
+        dev_s = np.abs(np.asarray(rk.strobe) - np.asarray(rm.strobe))[0].max(axis=1)
+        rel = dev_s / np.maximum(amp, 1e-300)
+        emit({"case": "smoke", "points": 64, "kernel_first_s": tk, "map_first_s": tm,
+              "failed_kernel": int(np.sum(rk.failed)), "failed_map": int(np.sum(rm.failed)),
+              "strobe_rel_dev_median": float(np.median(rel)),
+              "strobe_rel_dev_max": float(rel.max()),
+              "steps_kernel": int(np.sum(rk.num_steps)),
+              "steps_map": int(np.sum(rm.num_steps))})
 
     kernel_runs = {}
     for n in args.points:
@@ -201,19 +209,62 @@ def main():
             continue
         freqs = np.linspace(100.0, 4000.0, n)
         cfg = config(n, "kernel", periods=16, transient_periods=200)
+        ver = VerifySettings(wide=bool(args.wide))
+        phases = phase_timers()
         r1, first = timed(lambda: sweep(problem, freqs, config=cfg, progress=False,
-                                        verify=VerifySettings()))
+                                        verify=ver))
+        first_phases = phases.take()
         if over(f"verified {n} second call"):
-            emit({"case": "verified", "points": n, "first_call_s": first})
+            emit({"case": "verified", "points": n, "first_call_s": first, "wide": ver.is_wide(),
+                  "phases_first": first_phases})
             continue
         r2, second = timed(lambda: sweep(problem, freqs, config=cfg, progress=False,
-                                         verify=VerifySettings()))
+                                         verify=ver))
         labels = {}
-        for m in r2.motions()[0]:
-            labels[m.label] = labels.get(m.label, 0) + 1
+        for m in np.asarray(r2.verdicts["motion"])[0]:  # the verified labels
+            labels[str(m)] = labels.get(str(m), 0) + 1
         emit({"case": "verified", "points": n, "first_call_s": first, "run_s": second,
-              "labels": labels})
+              "wide": ver.is_wide(), "labels": labels, "phases_first": first_phases,
+              "phases_run": phases.take()})
     emit({"case": "done"})
+
+
+def phase_timers():
+    """Seconds and calls of the verified sweep's phases (the verification as a whole, its
+    orbit checks, its continuation blocks), by wrapping them; `take()` returns and resets."""
+    from bsfs_jax.analysis import _orbit_trials, _verify
+
+    acc = {}
+
+    def wrap(owner, name, key):
+        fn = getattr(owner, name)
+
+        depth = [0]
+
+        def timed_fn(*a, **k):  # the outermost call of a recursion only
+            t0 = time.perf_counter()
+            depth[0] += 1
+            try:
+                return fn(*a, **k)
+            finally:
+                depth[0] -= 1
+                if not depth[0]:
+                    s, c = acc.get(key, (0.0, 0))
+                    acc[key] = (s + time.perf_counter() - t0, c + 1)
+
+        setattr(owner, name, timed_fn)
+
+    wrap(_verify, "verify_sweep", "verify_s")
+    wrap(_verify, "run_block", "blocks_s")
+    wrap(_orbit_trials.OrbitTrials, "orbits", "orbit_checks_s")
+
+    class Phases:
+        def take(self):
+            out = {k: {"s": round(v[0], 3), "calls": v[1]} for k, v in acc.items()}
+            acc.clear()
+            return out
+
+    return Phases()
 
 
 VARIANTS = [  # (name, block, num_warps): lanes per Triton program and the warps running them

@@ -237,3 +237,37 @@ def test_prefetched_orbit_checks_compile_once_and_agree():
     np.testing.assert_allclose(v["max_multiplier"][0], mu, rtol=1e-6)
     assert compiles["n"] == 0  # the prefetched program served the checks
     assert not any(k[0] == id(linear_oscillator) for k in _orbit_check._PREFETCHED)
+
+
+def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
+    """A wide verification (an accelerator's: one lockstep batch per chunk, padded to a
+    power of two, and the continuation blocks padded alike) gives the verdicts of narrow
+    batches: the padding lanes repeat a point and are dropped. The Duffing route, whose
+    chaotic point runs the continuation blocks (3 pending points padded to 4 lanes)."""
+    from bsfs_jax.analysis import _extend
+
+    problem = SweepProblem(duffing, _gamma_setup, jnp.array([0.3, -1.0, 1.0, 1.2]),
+                           jnp.array([1.0, 0.0]), "gamma")
+    cfg = SweepConfig(transient_periods=60, periods=16, samples_per_period=16,
+                      lyapunov=False, batch_size=4, chunk_size=4, settings=SETTINGS)
+    res = sweep(problem, np.array([0.20, 0.28, 0.29, 0.50]), config=cfg, progress=False)
+    widths = []
+    block = _extend._block
+
+    def spy(*args, **kwargs):
+        widths.append(int(args[3].shape[0]))
+        return block(*args, **kwargs)
+
+    monkeypatch.setattr(_extend, "_block", spy)
+    narrow = verify_sweep(problem, res, settings=VerifySettings(batch=2, wide=False))
+    n_narrow = len(widths)
+    wide_settings = VerifySettings(batch=2, wide=True)
+    assert wide_settings.lanes_for(4) == 4 and wide_settings.lanes_for(5) == 8
+    assert VerifySettings(batch=2, wide=False).lanes_for(5) == 2
+    wide = verify_sweep(problem, res, settings=wide_settings)
+    assert n_narrow >= 1 and set(widths[n_narrow:]) == {4}  # blocks padded to the lanes
+    assert list(wide["motion"][0]) == list(narrow["motion"][0]) == \
+        ["period-1", "period-2", "period-4", "chaotic"]
+    for f in ("max_multiplier", "orbit_residual", "lyapunov_low", "lyapunov_high",
+              "amplitude"):
+        np.testing.assert_allclose(wide[f], narrow[f], rtol=1e-9, atol=1e-12, err_msg=f)

@@ -44,10 +44,17 @@ def _block(vector_field, setup, data, values, y, v, periods: int, spp: int,
 
 
 def run_block(problem, values, y, v, *, periods: int, samples_per_period: int,
-              settings: SolverSettings) -> Block:
+              settings: SolverSettings, pad_to: int = 0) -> Block:
     """Integrate B trajectories of `problem` (a `SweepProblem`) for `periods` forcing
-    periods from states `y` (B, d) at phase 0 with unit tangents `v` (B, d)."""
+    periods from states `y` (B, d) at phase 0 with unit tangents `v` (B, d). `pad_to` > B:
+    run that many lanes (the last trajectory repeated), so blocks of any B share one
+    program (a wide verification's)."""
+    values, y, v = (np.asarray(a, dtype=float) for a in (values, y, v))
+    B = values.shape[0]
+    if pad_to > B:
+        rep = np.concatenate([np.arange(B), np.full(pad_to - B, B - 1)])
+        values, y, v = values[rep], y[rep], v[rep]
     out = _block(problem.vector_field, problem.setup, problem.data,
-                 jnp.asarray(values, dtype=float), jnp.asarray(y, dtype=float),
-                 jnp.asarray(v, dtype=float), int(periods), int(samples_per_period), settings)
-    return Block(*(np.asarray(a) for a in out))
+                 jnp.asarray(values), jnp.asarray(y), jnp.asarray(v), int(periods),
+                 int(samples_per_period), settings)
+    return Block(*(np.asarray(a)[:B] for a in out))

@@ -22,16 +22,18 @@ def scale_of(amplitude, y):
 
 class OrbitTrials:
     """Orbit trials of one problem under `VerifySettings`; `observe` is the coordinate
-    whose amplitude is reported."""
+    whose amplitude is reported; `lanes`: points per lockstep batch of the checks (default
+    `settings.batch`; a wide verification gives its chunk's, `VerifySettings.lanes_for`)."""
 
-    def __init__(self, problem, settings, observe: int):
+    def __init__(self, problem, settings, observe: int, lanes: int | None = None):
         self.p, self.s, self.obs = problem, settings, observe
+        self.lanes = int(settings.batch if lanes is None else lanes)
 
     def prefetch(self) -> None:
         """Start compiling the orbit checks' program in the background (a sweep asks for
         it before it integrates; `orbits` then finds it compiled)."""
         s = self.s
-        prefetch_check_orbits(self.p.vector_field, self.p.setup, self.p.data, s.batch,
+        prefetch_check_orbits(self.p.vector_field, self.p.setup, self.p.data, self.lanes,
                               self.p.n_states, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
                               max_period=s.max_period, settings=s.orbit_settings)
 
@@ -39,12 +41,12 @@ class OrbitTrials:
         """items: list of (value, y, scale, n) -> list of OrbitCheck rows (host)."""
         out = []
         s = self.s
-        for k in range(0, len(items), s.batch):
-            part = items[k:k + s.batch]
+        for k in range(0, len(items), self.lanes):
+            part = items[k:k + self.lanes]
             # Always a full batch (the last item repeated): one shape, so one compiled
             # program for every call (a first sweep compiled it for 16, 8 and 1 items:
             # three programs of 5 s each, against a few lanes of repeated work).
-            pad = part + [part[-1]] * (s.batch - len(part))
+            pad = part + [part[-1]] * (self.lanes - len(part))
             vals, ys, scs, ns = (np.array([it[j] for it in pad]) for j in range(4))
             chk = check_orbits(self.p.vector_field, self.p.setup, self.p.data, vals, ys,
                                scs, ns, tol=s.orbit_tol, max_steps=s.orbit_max_steps,

@@ -316,8 +316,11 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
                                           fallback=config.transient_periods)
             if config.lyapunov:
                 transient = np.maximum(transient, config.lyapunov_align_periods + 1)
-    # The verifier's orbit checks compile on the second core while the sweep integrates.
-    OrbitTrials(problem, verify, problem.observe).prefetch()
+    # The verifier's orbit checks compile on the second core while the sweep integrates
+    # (for the lanes `verify_sweep` will use: its chunk's, wide; else `verify.batch`).
+    chunk = max(int(config.chunk_size), 16)
+    OrbitTrials(problem, verify, problem.observe,
+                lanes=verify.lanes_for(min(chunk, max(vals.size, 1)))).prefetch()
     res = sweep(problem, values, mode=mode, direction=direction, config=config, y0=y0,
                 transient=transient, checkpoint_dir=checkpoint_dir, progress=progress,
                 shard=shard, segments=segments, metadata=metadata)
@@ -330,7 +333,7 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
     stored = verify_sweep(problem, res, settings=verify, transient=n_tr, progress=progress,
                           checkpoint_dir=None if checkpoint_dir is None else
                           Path(checkpoint_dir) / "verdicts",
-                          chunk=max(int(config.chunk_size), 16))
+                          chunk=chunk)
     res.verdicts = stored
     res.metadata["verify_settings"] = jsonable(verify.to_dict())
     return res

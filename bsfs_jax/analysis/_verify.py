@@ -80,6 +80,12 @@ class VerifySettings:
       under which the trajectory has stopped drifting.
     - `rotation_tol`, `curve_tol`, `line_fraction_min`: torus and chaos thresholds.
     - `batch`: points checked in lockstep.
+    - `wide`: run the orbit checks and the continuation blocks of a whole verification
+      chunk as one batch, padded to a power of two (`lanes_for`), so one program serves
+      every call: on an accelerator a lockstep batch costs its slowest lane's steps times
+      a launch-bound step whatever its width, and batches of `batch` would pay that once
+      per 16 points. None (the default): wide where the default backend is not the CPU
+      (where lockstep lanes cost their arithmetic, and narrow batches wait less).
     - `run_settings`: ODE settings of the continuation blocks (as a sweep's).
     """
 
@@ -107,6 +113,7 @@ class VerifySettings:
     curve_tol: float = 0.05
     line_fraction_min: float = 0.99
     batch: int = 16
+    wide: bool | None = None
     run_settings: SolverSettings = SolverSettings(solver="dopri5-fused", max_steps=4_000_000)
 
     def __post_init__(self):
@@ -119,6 +126,18 @@ class VerifySettings:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    def is_wide(self) -> bool:
+        """`wide` resolved on this process's default backend."""
+        return jax.default_backend() != "cpu" if self.wide is None else bool(self.wide)
+
+    def lanes_for(self, points: int) -> int:
+        """Lockstep lanes of the orbit checks for a verification chunk of `points` points:
+        `batch`, or (wide) the chunk's size rounded up to a power of two (at least `batch`)."""
+        b = int(self.batch)
+        if not self.is_wide():
+            return b
+        return max(b, 1 << max(int(points) - 1, 0).bit_length())
 
 
 #: Names and units of the per-point verdict arrays (all (D, N)).
@@ -185,15 +204,20 @@ def _empty(shape, max_period: int):
 
 
 def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
-                  settings: VerifySettings = VerifySettings(), progress: bool = False):
+                  settings: VerifySettings = VerifySettings(), progress: bool = False,
+                  lanes: int | None = None):
     """Verify K sampled points: `strobes` (K, k, d) stroboscopic samples ending at the
     state to continue from; `amplitudes` (K, d); `periods` (K,); `transients` (K,) time
-    already integrated. Returns a dict of (K,) verdict arrays (`VERDICT_FIELDS`)."""
+    already integrated. Returns a dict of (K,) verdict arrays (`VERDICT_FIELDS`).
+    `lanes`: lockstep lanes of the checks (default `settings.lanes_for(K)`); a wide
+    verification also pads its continuation blocks to that many points."""
     s = settings
     K = len(values)
     out = _empty((K,), s.max_period)
     obs = problem.observe
-    ver = OrbitTrials(problem, s, obs)
+    lanes = s.lanes_for(K) if lanes is None else int(lanes)
+    ver = OrbitTrials(problem, s, obs, lanes=lanes)
+    pad_to = lanes if s.is_wide() else 0
     entries = [(k, values[k], strobes[k], amplitudes[k], periods[k], ()) for k in range(K)]
     found, reasons = ver.try_orbits(entries)
     for k, v in found.items():
@@ -219,7 +243,8 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
             break
         blk = run_block(problem, values[pending], np.array([state[k] for k in pending]),
                         np.array([tangent[k] for k in pending]), periods=s.block_periods,
-                        samples_per_period=s.block_samples, settings=s.run_settings)
+                        samples_per_period=s.block_samples, settings=s.run_settings,
+                        pad_to=pad_to)
         entries, stats = [], {}
         for j, k in enumerate(pending):
             if blk.status[j] != 0:
@@ -359,6 +384,7 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
     from tqdm.auto import tqdm
 
     bar = tqdm(total=len(keys), unit="pt", disable=not progress or not keys, desc="verify")
+    lanes = settings.lanes_for(min(int(chunk), len(keys)))
     for c, lo in enumerate(range(0, len(keys), int(chunk))):
         part = keys[lo:lo + int(chunk)]
         path = None if folder is None else folder / f"verdicts_{c:05d}.npz"
@@ -370,7 +396,7 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
                 problem, vals, np.array([result.strobe[d, i] for d, i in part]),
                 np.array([result.amplitude[d, i] for d, i in part]), per,
                 np.array([(n_tr[i] + P) * result.period[i] for _, i in part]),
-                settings=settings)
+                settings=settings, lanes=lanes)
             got = {f: np.asarray(a).astype(str) if f in ("motion", "reason") else
                    np.asarray(a) for f, a in got.items()}
             if path is not None and jax.process_index() == 0:

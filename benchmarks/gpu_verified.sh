@@ -1,0 +1,27 @@
+#!/bin/bash
+# Issue 21's verified cases on a lent GPU (the `device` tool), one call:
+#   1. a verified B1 sweep of 2048 points (kernel engine, wide verification), first call
+#      and second call, with the verification's phases (bench_gpu.py case 5);
+#   2. `bsfs map` over 256 x 256 points (frequency 100-4000 Hz x force 1000-8000 N,
+#      verified, no row continuations), cold, in a fresh process.
+# Usage (device): bash benchmarks/gpu_verified.sh [VERIFY_TIMEOUT_S] [ATLAS_TIMEOUT_S] [N]
+# Needs .whl/h5netcdf-*.whl carried (the image lacks h5netcdf). Rows go to $OUT.
+export PYTHONUNBUFFERED=1 MPLBACKEND=Agg BSFS_CACHE_DIR=/tmp/bsfs-cache
+python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD
+nvidia-smi --query-gpu=name,clocks.max.sm,driver_version --format=csv,noheader
+N=${3:-256}
+if [ "${1:-200}" != 0 ]; then
+  timeout "${1:-200}" python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 --points "" \
+    --numba-points "" --vmap-points "" --verify-points 2048 --budget 120
+fi
+t0=$(date +%s.%N)
+timeout "${2:-240}" python3 -c "import sys; from bsfs_jax.cli import run; sys.argv[0] = 'bsfs'; run()" \
+  map --x-start 100 --x-stop 4000 --x-num "$N" --y-start 1000 --y-stop 8000 --y-num "$N" \
+  --no-bifurcations --engine kernel --out /tmp/atlas 2>&1 | tr '\r' '\n' | grep -v '^$' | tail -25
+rc=${PIPESTATUS[0]}
+t1=$(date +%s.%N)
+echo "{\"case\": \"atlas\", \"grid\": \"${N}x${N}\", \"rc\": $rc, \"wall_s\": $(python3 -c "print(round($t1 - $t0, 2))")}" | tee -a "$OUT/gpu.jsonl"
+cp /tmp/atlas/summary.json "$OUT/atlas_summary.json" 2>/dev/null
+cp /tmp/atlas/motion.png "$OUT/atlas_motion.png" 2>/dev/null
+true
