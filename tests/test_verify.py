@@ -271,3 +271,43 @@ def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
     for f in ("max_multiplier", "orbit_residual", "lyapunov_low", "lyapunov_high",
               "amplitude"):
         np.testing.assert_allclose(wide[f], narrow[f], rtol=1e-9, atol=1e-12, err_msg=f)
+
+
+def test_settle_blocks_verify_on_the_sweeps_program(monkeypatch):
+    """Settle blocks (the accelerator's default): a point without an orbit after the
+    sweep is run on by the sweep's own program (same chunk shape, so no new program)
+    and verified from that record, without the long runs; the same orbit as the long
+    runs find. B1's 620 Hz point at 5000 N (3 time constants of transient leave it too
+    far from its orbit for the first trial)."""
+    from bsfs_jax.analysis import _sweep_engines, _verify, bsfs_problem
+    from bsfs_jax.params import preset
+
+    problem = bsfs_problem(preset("default"), "frequency_hz", force_n=5000.0)
+    cfg = SweepConfig(transient_periods=200, periods=16, samples_per_period=1,
+                      lyapunov=False, batch_size=1, chunk_size=1,
+                      settings=SolverSettings(rtol=1e-8, atol=1e-12, solver="dopri5-fused"))
+    blocks, chunks = [], []
+    run_block, cold_chunk = _verify.run_block, _sweep_engines._cold_chunk
+    monkeypatch.setattr(_verify, "run_block",
+                        lambda *a, **k: blocks.append(len(a[1])) or run_block(*a, **k))
+
+    def spy(problem, values, y0s, n_transient, *rest):
+        chunks.append((values.shape, y0s.shape, None if n_transient is None else
+                       n_transient.shape))
+        return cold_chunk(problem, values, y0s, n_transient, *rest)
+
+    monkeypatch.setattr(_sweep_engines, "_cold_chunk", spy)
+    monkeypatch.setattr("bsfs_jax.analysis._sweep._cold_chunk", spy)
+    out = {}
+    for settle in (False, True):
+        blocks.clear(), chunks.clear()
+        out[settle] = sweep(problem, [620.0], config=cfg, progress=False,
+                            verify=VerifySettings(settle=settle)).verdicts
+        assert out[settle]["motion"][0, 0] == "period-1" and out[settle]["verified"][0, 0]
+        assert (blocks == []) == settle  # the long runs only without settle blocks
+        assert len(chunks) == 1 + settle and len(set(chunks)) == 1  # one program
+    np.testing.assert_allclose(out[True]["max_multiplier"], out[False]["max_multiplier"],
+                               rtol=1e-6)
+    np.testing.assert_allclose(out[True]["amplitude"], out[False]["amplitude"], rtol=1e-6)
+    # The time before the evidence's run: the same convention as the long runs'.
+    np.testing.assert_allclose(out[True]["transient"], out[False]["transient"], rtol=1e-9)

@@ -137,3 +137,29 @@ class OrbitTrials:
             elif key not in reasons or n == 1:
                 reasons[key] = why
         return found, reasons
+
+    def settle(self, run, pending, values, periods, state, used):
+        """Settle blocks (`VerifySettings.settle`): run the points `pending` on by
+        `run(values, states)` (`_sweep_engines.SettleRuns`) up to `settle_blocks` times,
+        trying their records for orbits after each. Updates `state` and `used` (time
+        integrated) in place; returns ({key: verdict}, {key: reason}, {key: settle time})
+        for the points verified, the reasons of the others, and every point's settle time."""
+        found, reasons = {}, {}
+        spent = dict.fromkeys(pending, 0.0)
+        for _ in range(int(self.s.settle_blocks)):
+            if not pending:
+                break
+            strobes, amps, ok = run(values[pending], np.array([state[k] for k in pending]))
+            entries = []
+            for j, k in enumerate(pending):
+                if ok[j]:  # else left to the long runs, which report a failure
+                    state[k] = strobes[j][-1]
+                    used[k] += run.periods * periods[k]
+                    spent[k] += run.periods * periods[k]
+                    entries.append((k, values[k], strobes[j], amps[j], periods[k], ()))
+            more, why = self.try_orbits(entries)
+            for k, v in more.items():  # transient: the time before the evidence's run
+                found[k] = {**v, "transient": used[k] - run.periods * periods[k]}
+            reasons.update(why)
+            pending = [k for k in pending if k not in found]
+        return found, reasons, spent

@@ -40,7 +40,14 @@ import numpy as np
 
 from .._files import ChunkCheckpoint, jsonable
 from ..solvers import result_from_codes
-from ._sweep_engines import _cold_chunk, _continued_chunk, _make_mesh, _periods
+from ._sweep_engines import (
+    SettleRuns,
+    _cold_chunk,
+    _continued_chunk,
+    _make_mesh,
+    _periods,
+    cold_chunk_size,
+)
 from ._sweep_problem import DIRECTIONS, MODES, OK
 from ._sweep_problem import SweepConfig as SweepConfig
 from ._sweep_problem import SweepProblem as SweepProblem
@@ -214,10 +221,8 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
     if segments > 1:
         fingerprint = hashlib.sha256(f"{fingerprint}/{segments}".encode()).hexdigest()[:24]
     mesh = _make_mesh(shard, n) if mode == "cold" else None
-    chunk = min(config.chunk_size, length)
-    if mesh is not None:
-        k = mesh.devices.size
-        chunk = -(-chunk // k) * k
+    chunk = cold_chunk_size(config, length, mesh) if mode == "cold" else \
+        min(config.chunk_size, length)
     n_chunks = -(-length // chunk)
     ckpt = ChunkCheckpoint(checkpoint_dir, fingerprint, n_chunks)
 
@@ -330,10 +335,16 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
             np.asarray(transient)
     else:  # continued: the first point of each lane ran the cold transient
         n_tr = np.full(n, config.continued_transient_periods)
+    settle = None
+    if mode == "cold" and (problem.resolved_engine(config) == "kernel" if verify.settle is None
+                           else verify.settle):
+        mesh = _make_mesh(shard, n)
+        settle = SettleRuns(problem, config, mesh, cold_chunk_size(config, n, mesh),
+                            verify.block_periods)
     stored = verify_sweep(problem, res, settings=verify, transient=n_tr, progress=progress,
                           checkpoint_dir=None if checkpoint_dir is None else
                           Path(checkpoint_dir) / "verdicts",
-                          chunk=chunk)
+                          chunk=chunk, settle=settle)
     res.verdicts = stored
     res.metadata["verify_settings"] = jsonable(verify.to_dict())
     return res

@@ -193,6 +193,50 @@ def _continued_chunk(problem, values, y_carry, ok_carry, first, cfg: SweepConfig
     return carry, out
 
 
+def cold_chunk_size(config: SweepConfig, n_points: int, mesh) -> int:
+    """Points per chunk of a cold sweep of `n_points` (a multiple of the mesh's devices)."""
+    chunk = min(int(config.chunk_size), int(n_points))
+    if mesh is not None:
+        k = mesh.devices.size
+        chunk = -(-chunk // k) * k
+    return chunk
+
+
+class SettleRuns:
+    """The verifier's settle blocks on a cold sweep's own program: `periods` forcing
+    periods from given states, the last `config.periods` recorded as the sweep records
+    them. Called with (values (B,), states (B, n)), it returns (strobes (B, P + 1, n),
+    amplitudes (B, n), ok (B,)), the strobe's last point the state reached. Runs are
+    padded to the sweep's chunk of `chunk` points (the last one repeated), so the
+    sweep's compiled program serves them (on a GPU: the kernel, where a lane runs its
+    own loop; the verifier's long runs with the tangent dynamics are lockstep)."""
+
+    def __init__(self, problem, config: SweepConfig, mesh, chunk: int, periods: int):
+        self.problem, self.config, self.mesh, self.chunk = problem, config, mesh, int(chunk)
+        self.periods = max(int(periods), int(config.periods) + 1)
+
+    def __call__(self, values, states):
+        values = np.asarray(values, dtype=float)
+        states = np.asarray(states, dtype=float)
+        B, C = values.shape[0], self.chunk
+        n_tr = jnp.full(C, float(self.periods - self.config.periods))
+        parts = []
+        for lo in range(0, B, C):
+            hi = min(lo + C, B)
+            pos = np.concatenate([np.arange(lo, hi), np.full(C - (hi - lo), hi - 1)])
+            out = _cold_chunk(self.problem, jnp.asarray(values[pos]), jnp.asarray(states[pos]),
+                              n_tr, self.config, self.mesh)
+            if self.mesh is not None and jax.process_count() > 1:
+                from jax.experimental import multihost_utils
+
+                out = multihost_utils.process_allgather(out, tiled=True)
+            parts.append([np.asarray(out[k])[:hi - lo] for k in
+                          ("strobe", "amplitude", "status")])
+        strobe, amp, status = (np.concatenate(a) for a in zip(*parts, strict=True))
+        ok = (status == OK) & np.all(np.isfinite(strobe), axis=(1, 2))
+        return strobe, amp, ok
+
+
 def _make_mesh(shard, n_points_hint: int):
     if shard is False or shard is None:
         return None

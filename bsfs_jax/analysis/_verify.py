@@ -37,13 +37,12 @@ from .._files import jsonable, save_npz_atomic
 from .._numerics import half_range
 from ..solvers import CHECK_SETTINGS, SolverSettings, result_codes, result_text
 from . import _evidence as ev
+from ._block_verdict import UNRESOLVED, block_verdict
 from ._extend import run_block
 from ._lyapunov import initial_tangent
-from ._orbit_trials import OrbitTrials, scale_of
-from ._spectrum import amplitude_spectrum, line_fraction
+from ._orbit_trials import OrbitTrials
 
-QUASI_PERIODIC, CHAOTIC, UNRESOLVED, FAILED = "quasi-periodic", "chaotic", "unresolved", \
-    "failed"
+FAILED = "failed"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +85,12 @@ class VerifySettings:
       a launch-bound step whatever its width, and batches of `batch` would pay that once
       per 16 points. None (the default): wide where the default backend is not the CPU
       (where lockstep lanes cost their arithmetic, and narrow batches wait less).
+    - `settle`, `settle_blocks`: before the continuation blocks (which integrate the
+      tangent dynamics too, in lockstep), points without an orbit are first run on for up
+      to `settle_blocks` blocks of `block_periods` by the sweep's own program, its record
+      tried for orbits after each (`_sweep_engines.SettleRuns`); their time is not charged
+      to the blocks' budget. None (the default): where the sweep's engine is the kernel
+      (on a GPU a lane of the kernel runs its own loop, ~10x faster than a lockstep block).
     - `run_settings`: ODE settings of the continuation blocks (as a sweep's).
     """
 
@@ -114,6 +119,8 @@ class VerifySettings:
     line_fraction_min: float = 0.99
     batch: int = 16
     wide: bool | None = None
+    settle: bool | None = None
+    settle_blocks: int = 2
     run_settings: SolverSettings = SolverSettings(solver="dopri5-fused", max_steps=4_000_000)
 
     def __post_init__(self):
@@ -205,12 +212,13 @@ def _empty(shape, max_period: int):
 
 def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
                   settings: VerifySettings = VerifySettings(), progress: bool = False,
-                  lanes: int | None = None):
+                  lanes: int | None = None, settle=None):
     """Verify K sampled points: `strobes` (K, k, d) stroboscopic samples ending at the
     state to continue from; `amplitudes` (K, d); `periods` (K,); `transients` (K,) time
     already integrated. Returns a dict of (K,) verdict arrays (`VERDICT_FIELDS`).
     `lanes`: lockstep lanes of the checks (default `settings.lanes_for(K)`); a wide
-    verification also pads its continuation blocks to that many points."""
+    verification also pads its continuation blocks to that many points. `settle`: the
+    settle blocks' runner (`_sweep_engines.SettleRuns`), or None for none."""
     s = settings
     K = len(values)
     out = _empty((K,), s.max_period)
@@ -232,13 +240,22 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
     state = {k: strobes[k][-1] for k in pending}
     tangent = {k: np.asarray(initial_tangent(problem.n_states)) for k in pending}
     used = {k: float(transients[k]) for k in pending}
+    # Time of the settle blocks: not charged to the long runs' budget.
+    settled = dict.fromkeys(pending, 0.0)
+    if settle is not None and pending:
+        found, why, settled = ver.settle(settle, pending, values, periods, state, used)
+        for k, v in found.items():
+            for f, x in v.items():
+                out[f][k] = x
+        reasons.update(why)
+        pending = [k for k in pending if k not in found]
     last = {}
     from tqdm.auto import tqdm
 
     bar = tqdm(total=len(pending), unit="pt", disable=not progress or not pending,
                desc="verify (long runs)")
     for b in range(s.max_blocks):
-        pending = [k for k in pending if used[k] - transients[k] < budget[k]]
+        pending = [k for k in pending if used[k] - settled[k] - transients[k] < budget[k]]
         if not pending:
             break
         blk = run_block(problem, values[pending], np.array([state[k] for k in pending]),
@@ -272,7 +289,7 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
                 continue
             # The latest exponent estimate stays as evidence even without a verdict.
             lam = ev.exponent_interval(logs, s.segments)
-            verdict = _judge(ver, k, values[k], strobe, amp, lam, sig, periods[k],
+            verdict = block_verdict(ver, k, values[k], strobe, amp, lam, sig, periods[k],
                              last.get(k), s)
             last[k] = (strobe, amp, logs)
             for f, x in zip(("lyapunov_per_period", "lyapunov_low", "lyapunov_high"), lam,
@@ -299,68 +316,14 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
     return out
 
 
-def _judge(ver, k, value, strobe, amp, lam, signal, period, prev, s: VerifySettings):
-    """Verdict of a non-periodic block (None: keep integrating); `lam` = (mean, low, high)
-    of lambda T over the block (`_evidence.exponent_interval`)."""
-    mean, lo, hi = lam
-    res = {"lyapunov_per_period": mean, "lyapunov_low": lo, "lyapunov_high": hi,
-           "amplitude": amp[ver.obs]}
-    if prev is None or not np.isfinite(mean):
-        return None
-    p_strobe, p_amp, _ = prev
-    # Drift: the section's mean and spread change between consecutive blocks by more
-    # than `drift_tol` of the amplitude plus their sampling error (a chaotic section's
-    # block statistics fluctuate; a decaying transient's spread shrinks steadily).
-    sc = scale_of(np.maximum(amp, p_amp), strobe[-1])
-    spread = np.maximum(strobe.std(0), p_strobe.std(0))
-    noise = 3.0 * spread * np.sqrt(2.0 * s.segments / strobe.shape[0])
-    d_mean = np.abs(strobe.mean(0) - p_strobe.mean(0))
-    d_std = np.abs(strobe.std(0) - p_strobe.std(0))
-    if np.any(d_mean > s.drift_tol * sc + noise) or np.any(d_std > s.drift_tol * sc + noise):
-        return None
-    if hi < -s.lyapunov_zero / 10:
-        return None  # contracting: an orbit should be reached; keep going
-    _, spec = amplitude_spectrum(signal, period / s.block_samples)
-    frac = line_fraction(spec, lines=max(1, min(16, spec.size // 10)))
-    res["line_fraction"] = frac
-    if lo > 0:
-        if frac < s.line_fraction_min:
-            return {**res, "motion": CHAOTIC, "verified": True,
-                    "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] (95 %) > 0, "
-                              f"broadband spectrum (line fraction {frac:.3f})"}
-        return {**res, "motion": UNRESOLVED, "verified": False,
-                "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] > 0, but the "
-                          f"spectrum is discrete (line fraction {frac:.3f})"}
-    if not (lo <= 0 <= hi and max(abs(lo), abs(hi)) <= s.lyapunov_zero):
-        return {**res, "motion": UNRESOLVED, "verified": False,
-                "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}]: neither zero "
-                          f"within {s.lyapunov_zero} nor positive"}
-    rho = ev.rotation_number(strobe)
-    err = ev.closed_curve_error(strobe)
-    lock = ev.locked_to(rho, s.max_period, s.rotation_tol)
-    res.update(rotation_number=rho, curve_error=err)
-    if lock is not None or not err <= s.curve_tol:
-        why = (f"rotation number {rho:.4f} locked to {lock[0]}/{lock[1]}" if lock else
-               f"section is not one smooth closed curve (error {err:.3f})")
-        return {**res, "motion": UNRESOLVED, "verified": False,
-                "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] ~ 0, but {why}"}
-    found, _ = ver.try_orbits([(k, value, strobe, amp, period,
-                                tuple(range(2, s.max_period + 1)))])
-    if found:
-        return found[k]
-    return {**res, "motion": QUASI_PERIODIC, "verified": True,
-            "reason": f"lambda T = {mean:.4f} in [{lo:.4f}, {hi:.4f}] (95 %) ~ 0, rotation "
-                      f"number {rho:.4f} not locked (q <= {s.max_period}), closed curve "
-                      f"(error {err:.3f}), no stable orbit of period <= {s.max_period}"}
-
-
 def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings(),
                  transient=None, progress: bool = False, checkpoint_dir=None,
-                 chunk: int = 64) -> dict:
+                 chunk: int = 64, settle=None) -> dict:
     """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`, and the (D, N, max_period)
     `orbit_strobe`) for every point of a sweep.
 
     `transient` (N,) periods integrated before the record (default the sweep's config).
+    `settle`: the settle blocks' runner (see `verify_points`).
     With `checkpoint_dir`, the verdicts of each `chunk` of points are saved there as they
     are found (tagged with the settings and the sweep's fingerprint), so an interrupted
     verification resumes with the chunks not yet done.
@@ -396,7 +359,7 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
                 problem, vals, np.array([result.strobe[d, i] for d, i in part]),
                 np.array([result.amplitude[d, i] for d, i in part]), per,
                 np.array([(n_tr[i] + P) * result.period[i] for _, i in part]),
-                settings=settings, lanes=lanes)
+                settings=settings, lanes=lanes, settle=settle)
             got = {f: np.asarray(a).astype(str) if f in ("motion", "reason") else
                    np.asarray(a) for f, a in got.items()}
             if path is not None and jax.process_index() == 0:
