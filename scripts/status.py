@@ -654,6 +654,14 @@ def _gpu(src: Sources, v: Values, targets: dict):
     put("over_numba_16384",
         lambda: sig(16384 / numba_rate() / kernel(16384)["run_s"], 2))
     put("verified_first_s", lambda: sig(row("verified", 2048)["first_call_s"], 3))
+    verified_run = lambda: next(r for r in rows() if r.get("case") == "verified"  # noqa: E731
+                                and r.get("points") == 2048 and "run_s" in r)
+    put("verified_run_s", lambda: sig(verified_run()["run_s"], 3))
+    put("verified_blocks_s",
+        lambda: sig(verified_run()["phases_run"]["blocks_s"]["s"], 3))
+    put("verified_checks_s",
+        lambda: sig(verified_run()["phases_run"]["orbit_checks_s"]["s"], 3))
+    put("verified_date", lambda: verified_run()["run"][:10])
     put("target_16384", lambda: verdict(kernel(16384)["run_s"] <= _t(targets, "gpu_b1_16k_s")))
     put("target_240", lambda: verdict(kernel(240)["run_s"] <= _t(targets, "gpu_b1_240_s")))
 
