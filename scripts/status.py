@@ -303,6 +303,8 @@ def _b1(src: Sources, v: Values):
     put("numba_1core_s", lambda: sig(d["numba"]["seconds"]))
     put("numba_all_s", lambda: sig(d["numba"]["parallel_all_cores_seconds"]))
     put("numba_over_ours", lambda: sig(d["ratios"]["numba_over_ours"], 2))
+    put("numba_all_over_ours", lambda: sig(d["numba"]["parallel_all_cores_seconds"]
+                                           / eng("map sharded")["seconds"], 2))
     put("peak_rss_gb", lambda: sig(d["peak_rss_mb"] / 1000.0))
     put("continued_s", lambda: sig(d["continued"]["seconds"]))
     put("cold_over_continued", lambda: sig(d["ratios"]["cold_over_continued"], 2))
