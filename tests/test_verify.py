@@ -241,8 +241,9 @@ def test_prefetched_orbit_checks_compile_once_and_agree():
 
 def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
     """A wide verification (an accelerator's: one lockstep batch per chunk, padded to a
-    power of two, and the continuation blocks padded alike) gives the verdicts of narrow
-    batches: the padding lanes repeat a point and are dropped. The Duffing route, whose
+    power of two, n = 1 and the candidate periods in one call, and the continuation blocks
+    padded alike) gives the verdicts of narrow batches: the padding lanes repeat a point
+    and are dropped. The Duffing route, whose
     chaotic point runs the continuation blocks (3 pending points padded to 4 lanes)."""
     from bsfs_jax.analysis import _extend
 
@@ -259,13 +260,21 @@ def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
         return block(*args, **kwargs)
 
     monkeypatch.setattr(_extend, "_block", spy)
+    from bsfs_jax.analysis import _orbit_trials
+
+    calls = []
+    check = _orbit_trials.check_orbits
+    monkeypatch.setattr(_orbit_trials, "check_orbits",
+                        lambda *a, **k: calls.append(len(a[3])) or check(*a, **k))
     narrow = verify_sweep(problem, res, settings=VerifySettings(batch=2, wide=False))
-    n_narrow = len(widths)
+    n_narrow, checks_narrow = len(widths), len(calls)
     wide_settings = VerifySettings(batch=2, wide=True)
     assert wide_settings.lanes_for(4) == 4 and wide_settings.lanes_for(5) == 8
     assert VerifySettings(batch=2, wide=False).lanes_for(5) == 2
     wide = verify_sweep(problem, res, settings=wide_settings)
     assert n_narrow >= 1 and set(widths[n_narrow:]) == {4}  # blocks padded to the lanes
+    # One lockstep width, and n = 1 with the candidate periods in one call: fewer calls.
+    assert set(calls[checks_narrow:]) == {4} and len(calls) - checks_narrow < checks_narrow
     assert list(wide["motion"][0]) == list(narrow["motion"][0]) == \
         ["period-1", "period-2", "period-4", "chaotic"]
     for f in ("max_multiplier", "orbit_residual", "lyapunov_low", "lyapunov_high",

@@ -103,7 +103,12 @@ class OrbitTrials:
         """entries: list of (key, value, strobe (k, d), amplitude (d,), period, extra_ns).
         Returns ({key: verdict} for the verified ones, {key: reason} for the others).
         First n = 1 and the extra periods; then, for the points left, the period of the
-        samples' loose repetition."""
+        samples' loose repetition. A wide verification (`VerifySettings.is_wide`) checks
+        both in one call, n = 1 preferred as before: on an accelerator a lockstep call
+        costs the same for any number of lanes, so the candidates' lanes are free and the
+        second call is saved (the same verdicts)."""
+        if self.s.is_wide():
+            return self._try(entries, first=True, candidates=True)
         found, reasons = self._try(entries, first=True)
         rest = [e for e in entries if e[0] not in found]
         more, why = self._try(rest, first=False)
@@ -112,13 +117,17 @@ class OrbitTrials:
             reasons.setdefault(k, r)
         return found, reasons
 
-    def _try(self, entries, first: bool):
+    def _try(self, entries, first: bool, candidates: bool = False):
         items, owners = [], []
         for key, value, strobe, amp, period, extra in entries:
             y = strobe[-1]
             sc = scale_of(amp, y)
             if first:
                 ns = sorted({1, *extra})
+                if candidates:
+                    cand = strobe_period(strobe, scale=sc, max_period=self.s.max_period,
+                                         tol=self.s.candidate_tol)
+                    ns += [cand] if cand > 1 and cand not in ns else []
             else:
                 cand = strobe_period(strobe, scale=sc, max_period=self.s.max_period,
                                      tol=self.s.candidate_tol)

@@ -77,7 +77,7 @@ def _value_and_grad(theta, params, op, hint=None, *, metric_name, names, setting
 
 
 # (value, value_and_grad) jitted: kept across processes (the package's own metrics) or not.
-_KEPT = (cached_jit(_value), cached_jit(_value_and_grad))
+_KEPT = (cached_jit(_value, fast_compile=True), cached_jit(_value_and_grad, fast_compile=True))
 _PLAIN = (eqx.filter_jit(_value), eqx.filter_jit(_value_and_grad))
 
 
