@@ -257,3 +257,66 @@ def test_kernel_engine_sharded_over_host_devices():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                        cwd=ROOT, timeout=600)
     assert r.returncode == 0 and "OK" in r.stdout, r.stderr[-3000:]
+
+
+def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(problem):
+    """`check_orbits_lanes` (every integration on the per-lane kernel: the variational
+    equations as 6 + 36 components, chord iterations, samples) against `check_orbits`
+    (vmapped fused loops) from the same sampled states, n = 1 and 2: the same orbits,
+    iterations and multipliers to the checks' accuracy (~1e-6)."""
+    from bsfs_jax.analysis._orbit_trials import scale_of
+    from bsfs_jax.solvers import check_orbits, check_orbits_lanes
+
+    freqs = np.array([620.0, 2000.0])
+    cfg = SweepConfig(transient_periods=30, periods=2, samples_per_period=8, lyapunov=False,
+                      chunk_size=2, settings=SolverSettings(solver="dopri5-fused", **TOL))
+    res = sweep(problem, freqs, config=cfg, progress=False)
+    y = np.asarray(res.strobe)[0, :, -1]
+    scale = np.array([scale_of(a, s) for a, s in zip(np.asarray(res.amplitude)[0], y)])
+    n = np.array([1, 2])
+    kw = dict(max_period=2, samples_per_period=8)
+    a = check_orbits(problem.vector_field, problem.setup, problem.data, freqs, y, scale, n,
+                     **kw)
+    b = check_orbits_lanes(problem.component_field, problem.setup, problem.data, freqs, y,
+                           scale, n, block=2, **kw)
+    assert np.asarray(b.converged).all() and np.asarray(a.converged).all()
+    np.testing.assert_array_equal(np.asarray(b.steps), np.asarray(a.steps))
+    amp = np.nanmax(np.abs(np.asarray(a.samples)), axis=1)  # (B, d); NaN past n T
+    np.testing.assert_allclose(np.asarray(b.state), np.asarray(a.state), rtol=0,
+                               atol=1e-6 * amp.max())
+    np.testing.assert_allclose(np.asarray(b.multipliers), np.asarray(a.multipliers),
+                               rtol=0, atol=1e-5)
+    for f in ("strobe", "samples"):
+        x, z = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
+        np.testing.assert_array_equal(np.isnan(z), np.isnan(x))
+        assert np.nanmax(np.abs(z - x)) < 1e-6 * amp.max(), f
+
+
+def test_verifier_runs_its_checks_on_the_kernel_where_asked(problem, monkeypatch):
+    """`VerifySettings(kernel_checks=True)` (the default with the kernel engine) sends the
+    verifier's orbit checks to `check_orbits_lanes`, and the verdicts are those of the
+    vmapped checks. Refused for a problem without a component field."""
+    from bsfs_jax.analysis import SweepProblem, VerifySettings, _orbit_trials
+
+    calls = []
+    lanes = _orbit_trials.check_orbits_lanes
+    monkeypatch.setattr(_orbit_trials, "check_orbits_lanes",
+                        lambda *a, **k: calls.append(len(a[3])) or lanes(*a, **k))
+    freqs = np.array([620.0, 2000.0])
+    cfg = SweepConfig(transient_periods=20, periods=4, samples_per_period=8, lyapunov=False,
+                      chunk_size=2, kernel_block=2,
+                      settings=SolverSettings(solver="dopri5-fused", **TOL))
+    out = {k: sweep(problem, freqs, config=cfg, progress=False,
+                    verify=VerifySettings(max_period=2, kernel_checks=k, settle=False)
+                    ).verdicts for k in (False, True)}
+    assert calls and set(calls) == {16}  # the checks' lanes (VerifySettings.batch)
+    assert list(out[True]["motion"][0]) == list(out[False]["motion"][0]) == \
+        ["period-1", "period-1"]
+    np.testing.assert_allclose(out[True]["max_multiplier"], out[False]["max_multiplier"],
+                               atol=1e-5)
+    np.testing.assert_allclose(out[True]["amplitude"], out[False]["amplitude"], rtol=1e-5)
+    plain = SweepProblem(problem.vector_field, problem.setup, problem.data, problem.y0,
+                         problem.param)
+    with pytest.raises(ValueError, match="component_field"):
+        sweep(plain, freqs, config=cfg, progress=False,
+              verify=VerifySettings(kernel_checks=True))

@@ -5,7 +5,7 @@ samples that follow the orbit's linearisation (see `_verify.py`)."""
 import numpy as np
 
 from .._numerics import half_range
-from ..solvers import check_orbits, prefetch_check_orbits
+from ..solvers import check_orbits, check_orbits_lanes, prefetch_check_orbits
 from . import _evidence as ev
 from ._classify import strobe_period
 
@@ -25,14 +25,20 @@ class OrbitTrials:
     whose amplitude is reported; `lanes`: points per lockstep batch of the checks (default
     `settings.batch`; a wide verification gives its chunk's, `VerifySettings.lanes_for`)."""
 
-    def __init__(self, problem, settings, observe: int, lanes: int | None = None):
+    def __init__(self, problem, settings, observe: int, lanes: int | None = None,
+                 kernel: dict | None = None):
         self.p, self.s, self.obs = problem, settings, observe
         self.lanes = int(settings.batch if lanes is None else lanes)
+        # {"fast", "block"}: the checks on the per-lane kernel (`check_orbits_lanes`, on
+        # the problem's component field), else None (vmapped, `check_orbits`)
+        self.kernel = kernel
 
     def prefetch(self) -> None:
         """Start compiling the orbit checks' program in the background (a sweep asks for
         it before it integrates; `orbits` then finds it compiled)."""
         s = self.s
+        if self.kernel is not None:
+            return
         prefetch_check_orbits(self.p.vector_field, self.p.setup, self.p.data, self.lanes,
                               self.p.n_states, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
                               max_period=s.max_period, settings=s.orbit_settings)
@@ -48,9 +54,16 @@ class OrbitTrials:
             # three programs of 5 s each, against a few lanes of repeated work).
             pad = part + [part[-1]] * (self.lanes - len(part))
             vals, ys, scs, ns = (np.array([it[j] for it in pad]) for j in range(4))
-            chk = check_orbits(self.p.vector_field, self.p.setup, self.p.data, vals, ys,
-                               scs, ns, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
-                               max_period=s.max_period, settings=s.orbit_settings)
+            if self.kernel is None:
+                chk = check_orbits(self.p.vector_field, self.p.setup, self.p.data, vals, ys,
+                                   scs, ns, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
+                                   max_period=s.max_period, settings=s.orbit_settings)
+            else:
+                chk = check_orbits_lanes(self.p.component_field, self.p.setup, self.p.data,
+                                         vals, ys, scs, ns, tol=s.orbit_tol,
+                                         max_steps=s.orbit_max_steps,
+                                         max_period=s.max_period,
+                                         settings=s.orbit_settings, **self.kernel)
             host = {f: np.asarray(getattr(chk, f)) for f in
                     ("state", "converged", "residual", "multipliers", "strobe", "samples",
                      "jac_distance", "monodromy")}

@@ -321,11 +321,18 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
                                           fallback=config.transient_periods)
             if config.lyapunov:
                 transient = np.maximum(transient, config.lyapunov_align_periods + 1)
+    on_kernel = mode == "cold" and problem.resolved_engine(config) == "kernel"
+    kernel = None
+    if on_kernel if verify.kernel_checks is None else verify.kernel_checks:
+        if problem.component_field is None:
+            raise ValueError("VerifySettings(kernel_checks=True) needs a problem with a "
+                             "component_field (the per-lane kernel's form of the field)")
+        kernel = {"fast": bool(config.kernel_fast), "block": int(config.kernel_block)}
     # The verifier's orbit checks compile on the second core while the sweep integrates
     # (for the lanes `verify_sweep` will use: its chunk's, wide; else `verify.batch`).
     chunk = max(int(config.chunk_size), 16)
     OrbitTrials(problem, verify, problem.observe,
-                lanes=verify.lanes_for(min(chunk, max(vals.size, 1)))).prefetch()
+                lanes=verify.lanes_for(min(chunk, max(vals.size, 1))), kernel=kernel).prefetch()
     res = sweep(problem, values, mode=mode, direction=direction, config=config, y0=y0,
                 transient=transient, checkpoint_dir=checkpoint_dir, progress=progress,
                 shard=shard, segments=segments, metadata=metadata)
@@ -336,15 +343,14 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
     else:  # continued: the first point of each lane ran the cold transient
         n_tr = np.full(n, config.continued_transient_periods)
     settle = None
-    if mode == "cold" and (problem.resolved_engine(config) == "kernel" if verify.settle is None
-                           else verify.settle):
+    if mode == "cold" and (on_kernel if verify.settle is None else verify.settle):
         mesh = _make_mesh(shard, n)
         settle = SettleRuns(problem, config, mesh, cold_chunk_size(config, n, mesh),
                             verify.block_periods)
     stored = verify_sweep(problem, res, settings=verify, transient=n_tr, progress=progress,
                           checkpoint_dir=None if checkpoint_dir is None else
                           Path(checkpoint_dir) / "verdicts",
-                          chunk=chunk, settle=settle)
+                          chunk=chunk, settle=settle, kernel=kernel)
     res.verdicts = stored
     res.metadata["verify_settings"] = jsonable(verify.to_dict())
     return res

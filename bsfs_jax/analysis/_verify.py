@@ -91,6 +91,9 @@ class VerifySettings:
       tried for orbits after each (`_sweep_engines.SettleRuns`); their time is not charged
       to the blocks' budget. None (the default): where the sweep's engine is the kernel
       (on a GPU a lane of the kernel runs its own loop, ~10x faster than a lockstep block).
+    - `kernel_checks`: run the orbit checks on the per-lane kernel
+      (`solvers.check_orbits_lanes`) with the sweep's kernel settings. None (the
+      default): where the sweep's engine is the kernel.
     - `run_settings`: ODE settings of the continuation blocks (as a sweep's).
     """
 
@@ -121,6 +124,7 @@ class VerifySettings:
     wide: bool | None = None
     settle: bool | None = None
     settle_blocks: int = 2
+    kernel_checks: bool | None = None
     run_settings: SolverSettings = SolverSettings(solver="dopri5-fused", max_steps=4_000_000)
 
     def __post_init__(self):
@@ -212,19 +216,21 @@ def _empty(shape, max_period: int):
 
 def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
                   settings: VerifySettings = VerifySettings(), progress: bool = False,
-                  lanes: int | None = None, settle=None):
+                  lanes: int | None = None, settle=None, kernel: dict | None = None):
     """Verify K sampled points: `strobes` (K, k, d) stroboscopic samples ending at the
     state to continue from; `amplitudes` (K, d); `periods` (K,); `transients` (K,) time
     already integrated. Returns a dict of (K,) verdict arrays (`VERDICT_FIELDS`).
     `lanes`: lockstep lanes of the checks (default `settings.lanes_for(K)`); a wide
     verification also pads its continuation blocks to that many points. `settle`: the
-    settle blocks' runner (`_sweep_engines.SettleRuns`), or None for none."""
+    settle blocks' runner (`_sweep_engines.SettleRuns`), or None for none. `kernel`:
+    {"fast", "block"} to run the orbit checks on the per-lane kernel
+    (`solvers.check_orbits_lanes`), or None (vmapped)."""
     s = settings
     K = len(values)
     out = _empty((K,), s.max_period)
     obs = problem.observe
     lanes = s.lanes_for(K) if lanes is None else int(lanes)
-    ver = OrbitTrials(problem, s, obs, lanes=lanes)
+    ver = OrbitTrials(problem, s, obs, lanes=lanes, kernel=kernel)
     pad_to = lanes if s.is_wide() else 0
     entries = [(k, values[k], strobes[k], amplitudes[k], periods[k], ()) for k in range(K)]
     found, reasons = ver.try_orbits(entries)
@@ -318,12 +324,12 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
 
 def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings(),
                  transient=None, progress: bool = False, checkpoint_dir=None,
-                 chunk: int = 64, settle=None) -> dict:
+                 chunk: int = 64, settle=None, kernel: dict | None = None) -> dict:
     """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`, and the (D, N, max_period)
     `orbit_strobe`) for every point of a sweep.
 
     `transient` (N,) periods integrated before the record (default the sweep's config).
-    `settle`: the settle blocks' runner (see `verify_points`).
+    `settle`, `kernel`: the settle blocks' runner and the kernel checks (`verify_points`).
     With `checkpoint_dir`, the verdicts of each `chunk` of points are saved there as they
     are found (tagged with the settings and the sweep's fingerprint), so an interrupted
     verification resumes with the chunks not yet done.
@@ -359,7 +365,7 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
                 problem, vals, np.array([result.strobe[d, i] for d, i in part]),
                 np.array([result.amplitude[d, i] for d, i in part]), per,
                 np.array([(n_tr[i] + P) * result.period[i] for _, i in part]),
-                settings=settings, lanes=lanes, settle=settle)
+                settings=settings, lanes=lanes, settle=settle, kernel=kernel)
             got = {f: np.asarray(a).astype(str) if f in ("motion", "reason") else
                    np.asarray(a) for f, a in got.items()}
             if path is not None and jax.process_index() == 0:

@@ -31,6 +31,7 @@ from ._orbit_check import CHECK_SETTINGS as CHECK_SETTINGS
 from ._orbit_check import OrbitCheck as OrbitCheck
 from ._orbit_check import check_orbits as check_orbits
 from ._orbit_check import prefetch_check_orbits as prefetch_check_orbits
+from ._orbit_check_lanes import check_orbits_lanes as check_orbits_lanes
 from ._results import RESULTS as RESULTS
 from ._results import result_code as result_code
 from ._results import result_codes as result_codes

@@ -1,0 +1,159 @@
+"""The verifier's orbit checks on the per-lane kernel (`integrate_lanes`).
+
+`check_orbits` (`_orbit_check.py`) vmaps single shooting over the points of a batch, so
+its integrations run in lockstep: on a GPU each of their steps is several small kernel
+launches, and a call costs the slowest point's steps times a launch-bound step (about
+3.5 s for 2048 lanes on an H100). Here the same method runs with every integration on the
+kernel, in which each point's loop is its own:
+
+- the variational equations from the sampled state: the state and the monodromy matrix
+  as d + d^2 components of one lane (the field's forward derivatives along the matrix's
+  columns, elementwise like the field itself), in the same scaled variables;
+- chord iterations with that Newton matrix, one kernel call per iteration for every point
+  (a point that has converged keeps its state: the iterations of each point are those of
+  `check_orbits`);
+- the orbit's samples over max_period periods.
+
+The results are `check_orbits`' (`OrbitCheck`) to the integrator's error (a run is
+restarted where `check_orbits` saves on the way, and the kernel may run the fast forms),
+well inside the checks' Newton tolerance. The field is the problem's `component_field`
+(`SweepProblem`). Nothing is differentiated through it.
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from ._lanes import integrate_lanes
+from ._orbit_check import CHECK_SETTINGS, OrbitCheck
+from ._results import RESULTS, result_codes
+
+_OK = int(result_codes(RESULTS.successful))
+#: Offset of the extra save time after the end of a run, in periods (the kernel records
+#: the state at `t_record` and then at least one sample; this one costs a step or two).
+_TAIL = 1e-6
+
+
+def _scaled(field):
+    """z' = f(t, z * scale) / scale on components; args = (the field's args, scale)."""
+    def g(t, zs, args):
+        inner, scale = args
+        ys = tuple(z * s for z, s in zip(zs, scale, strict=True))
+        return tuple(v / s for v, s in zip(field(t, ys, inner), scale, strict=True))
+
+    return g
+
+
+def _variational(field, d: int):
+    """(z, Phi) with Phi row-major after z: z' = g(z), Phi' = Dg(z) Phi, on components."""
+    def g(t, ws, args):
+        z = tuple(ws[:d])
+
+        def at(*zs):
+            return field(t, zs, args)
+
+        cols = []
+        for j in range(d):
+            out, tangent = jax.jvp(at, z, tuple(ws[d + i * d + j] for i in range(d)))
+            cols.append(tangent)
+        return tuple(out) + tuple(cols[j][i] for i in range(d) for j in range(d))
+
+    return g
+
+
+def _run_to(field, y, args, t_end, period, settings, fast, block):
+    """States at t_end (per lane) from y at 0, and the lanes' result codes."""
+    start, _, _, codes, _ = integrate_lanes(
+        field, y, args, t_end, _TAIL * period, n_samples=1, samples_per_period=1,
+        rtol=settings.rtol, atol=settings.atol, max_steps=settings.max_steps, block=block,
+        fast=fast)
+    return start, codes
+
+
+@functools.partial(jax.jit, static_argnames=("field", "setup", "max_steps", "max_period",
+                                             "spp", "settings", "fast", "block"))
+def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max_period,
+           spp, settings, fast, block):
+    B, d = y_guess.shape
+    args, period = jax.vmap(lambda v: setup(data, v))(values)
+    period = jnp.asarray(period, dtype=float)
+    nf = n.astype(float)
+    t_end = nf * period
+    eye = jnp.eye(d)
+    eyes = jnp.broadcast_to(eye, (B, d, d))
+    sargs = (args, scale)
+    g = _scaled(field)
+    z0 = y_guess / scale
+    w0 = jnp.concatenate([z0, jnp.broadcast_to(eye.reshape(-1), (B, d * d))], axis=1)
+    w, codes = _run_to(_variational(g, d), w0, sargs, t_end, period, settings, fast, block)
+    ok0 = codes == _OK
+    f0 = jnp.where(ok0[:, None], w[:, :d] - z0, jnp.nan)
+    j0 = w[:, d:].reshape(B, d, d) - eyes
+    j0 = jnp.where(ok0[:, None, None], j0, jnp.nan)
+    ok0 = ok0 & jnp.all(jnp.isfinite(f0), axis=1) & jnp.all(jnp.isfinite(j0), axis=(1, 2))
+    lu = jax.vmap(jax.scipy.linalg.lu_factor)(jnp.where(ok0[:, None, None], j0, eyes))
+
+    def pending(z, f, k, ok):
+        big = jnp.max(jnp.abs(f), axis=1) > tol * jnp.maximum(1.0, jnp.max(jnp.abs(z), axis=1))
+        return (k < max_steps) & big & ok
+
+    def cond(c):
+        return jnp.any(pending(*c))
+
+    def body(c):
+        z, f, k, ok = c
+        go = pending(z, f, k, ok)
+        z_try = z - jax.vmap(jax.scipy.linalg.lu_solve)(lu, f)
+        y, st = _run_to(g, jnp.where(go[:, None], z_try, z), sargs, t_end, period, settings,
+                        fast, block)
+        f_try = jnp.where((st == _OK)[:, None], y - z_try, jnp.nan)
+        keep = lambda new, old: jnp.where(go[:, None], new, old)  # noqa: E731
+        ok_new = jnp.where(go, jnp.all(jnp.isfinite(f_try), axis=1), ok)
+        return keep(z_try, z), keep(f_try, f), k + go.astype(k.dtype), ok_new
+
+    z, f, k, ok = jax.lax.while_loop(cond, body, (z0, f0, jnp.zeros(B, int), ok0))
+    res_norm = jnp.max(jnp.abs(f), axis=1)
+    converged = ok & (res_norm <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z), axis=1)))
+    mu = jax.vmap(lambda m: jnp.linalg.eigvals(m + eye))(j0)
+    mu = jnp.take_along_axis(mu, jnp.argsort(-jnp.abs(mu), axis=1), axis=1)
+    # The orbit's samples at j T / spp, j = 1..max_period spp: the first saved at the end
+    # of the run, the others after it (each lane runs max_period periods; those past
+    # n T are dropped below, as `check_orbits` clips them).
+    m = max_period * spp
+    first, rest, _, st, _ = integrate_lanes(
+        g, z, sargs, period / spp, period, n_samples=m - 1, samples_per_period=spp,
+        rtol=settings.rtol, atol=settings.atol, max_steps=settings.max_steps, block=block,
+        fast=fast)
+    ys = jnp.concatenate([first[:, None], rest], axis=1) * scale[:, None, :]
+    j = jnp.arange(1, m + 1, dtype=float)
+    valid = (j[None] <= nf[:, None] * spp) & (st == _OK)[:, None]
+    samples = jnp.where(valid[..., None], ys, jnp.nan)
+    # Stroboscopic points o_1..o_max; past n T they repeat the state at n T.
+    strobe = ys[:, spp - 1::spp]
+    last = jnp.take_along_axis(strobe, (n - 1)[:, None, None], axis=1)
+    strobe = jnp.where((jnp.arange(1, max_period + 1)[None] <= n[:, None])[..., None],
+                       strobe, last)
+    converged = converged & (st == _OK)
+    return OrbitCheck(z * scale, converged, res_norm, mu, strobe, samples, k,
+                      jnp.max(jnp.abs(z - z0), axis=1), j0 + eyes)
+
+
+def check_orbits_lanes(component_field, setup, data, values, y_guess, scale, n, *,
+                       tol: float = 1e-6, max_steps: int = 16, max_period: int = 16,
+                       samples_per_period: int = 32, settings=CHECK_SETTINGS,
+                       fast: bool = False, block: int = 32) -> OrbitCheck:
+    """`check_orbits` with every integration on the per-lane kernel (module docstring).
+
+    `component_field(t, ys, args)`: the system on a tuple of state components (the
+    `SweepProblem.component_field`, elementwise); `setup(data, value) -> (args, period)`
+    as for `check_orbits`, its args' leaves per point. `settings`: the checks' rtol, atol
+    and max_steps (a `SolverSettings`); `fast`, `block`: as `integrate_lanes`. One program
+    per batch layout; values, states, scales and periods are traced.
+    """
+    return _check(component_field, setup, data, jnp.asarray(values, dtype=float),
+                  jnp.asarray(y_guess, dtype=float), jnp.asarray(scale, dtype=float),
+                  jnp.asarray(n, dtype=int), jnp.asarray(tol, dtype=float),
+                  max_steps=int(max_steps), max_period=int(max_period),
+                  spp=int(samples_per_period), settings=settings, fast=bool(fast),
+                  block=int(block))
