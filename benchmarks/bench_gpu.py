@@ -51,6 +51,12 @@ def main():
     p.add_argument("--unroll", type=int, default=1,
                    help="SweepConfig.kernel_unroll for the kernel engine")
     p.add_argument("--smoke", type=int, default=1, help="run case 1 (1) or not (0)")
+    p.add_argument("--kernel-checks", type=int, default=0,
+                   help="VerifySettings.kernel_checks of the verified case (the orbit "
+                   "checks on the kernel: 1; vmapped: 0)")
+    p.add_argument("--settle", type=int, default=1,
+                   help="VerifySettings.settle of the verified case (1: settle blocks on "
+                   "the sweep's kernel program before the lockstep long runs)")
     p.add_argument("--wide", type=int, default=1,
                    help="VerifySettings.wide of the verified case (1: one lockstep batch per "
                    "chunk, the accelerator's default; 0: batches of 16)")
@@ -209,7 +215,8 @@ def main():
             continue
         freqs = np.linspace(100.0, 4000.0, n)
         cfg = config(n, "kernel", periods=16, transient_periods=200)
-        ver = VerifySettings(wide=bool(args.wide))
+        ver = VerifySettings(wide=bool(args.wide), kernel_checks=bool(args.kernel_checks),
+                             settle=bool(args.settle))
         phases = phase_timers()
         r1, first = timed(lambda: sweep(problem, freqs, config=cfg, progress=False,
                                         verify=ver))
@@ -224,7 +231,8 @@ def main():
         for m in np.asarray(r2.verdicts["motion"])[0]:  # the verified labels
             labels[str(m)] = labels.get(str(m), 0) + 1
         emit({"case": "verified", "points": n, "first_call_s": first, "run_s": second,
-              "wide": ver.is_wide(), "labels": labels, "phases_first": first_phases,
+              "wide": ver.is_wide(), "kernel_checks": ver.kernel_checks,
+              "settle": ver.settle, "labels": labels, "phases_first": first_phases,
               "phases_run": phases.take()})
     emit({"case": "done"})
 

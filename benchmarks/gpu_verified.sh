@@ -1,7 +1,8 @@
 #!/bin/bash
 # Issue 21's verified cases on a lent GPU (the `device` tool), one call:
-#   1. a verified B1 sweep of 2048 points (kernel engine, wide verification), first call
-#      and second call, with the verification's phases (bench_gpu.py case 5);
+#   1. a verified B1 sweep of 2048 points (kernel engine, wide verification, settle
+#      blocks), first call and second call, with the verification's phases (bench_gpu.py
+#      case 5): the orbit checks on the kernel, then vmapped;
 #   2. `bsfs map` over 256 x 256 points (frequency 100-4000 Hz x force 1000-8000 N,
 #      verified, no row continuations), cold, in a fresh process.
 # Usage (device): bash benchmarks/gpu_verified.sh [VERIFY_TIMEOUT_S] [ATLAS_TIMEOUT_S] [N]
@@ -12,8 +13,10 @@ export PYTHONPATH=/tmp/site:$PWD
 nvidia-smi --query-gpu=name,clocks.max.sm,driver_version --format=csv,noheader
 N=${3:-256}
 if [ "${1:-200}" != 0 ]; then
-  timeout "${1:-200}" python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 --points "" \
-    --numba-points "" --vmap-points "" --verify-points 2048 --budget 120
+  for kc in 1 0; do  # the orbit checks on the kernel, then vmapped (each a fresh process)
+    timeout "${1:-200}" python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 --points "" \
+      --numba-points "" --vmap-points "" --verify-points 2048 --budget 120 --kernel-checks $kc
+  done
 fi
 t0=$(date +%s.%N)
 timeout "${2:-240}" python3 -c "import sys; from bsfs_jax.cli import run; sys.argv[0] = 'bsfs'; run()" \

@@ -293,7 +293,7 @@ def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(problem):
 
 
 def test_verifier_runs_its_checks_on_the_kernel_where_asked(problem, monkeypatch):
-    """`VerifySettings(kernel_checks=True)` (the default with the kernel engine) sends the
+    """`VerifySettings(kernel_checks=True)` sends the
     verifier's orbit checks to `check_orbits_lanes`, and the verdicts are those of the
     vmapped checks. Refused for a problem without a component field."""
     from bsfs_jax.analysis import SweepProblem, VerifySettings, _orbit_trials
@@ -315,6 +315,16 @@ def test_verifier_runs_its_checks_on_the_kernel_where_asked(problem, monkeypatch
     np.testing.assert_allclose(out[True]["max_multiplier"], out[False]["max_multiplier"],
                                atol=1e-5)
     np.testing.assert_allclose(out[True]["amplitude"], out[False]["amplitude"], rtol=1e-5)
+    # Where the kernel's compiler refuses the checks, they run vmapped, with a warning.
+    def refuse(*a, **k):
+        raise RuntimeError("no Triton here")
+
+    monkeypatch.setattr(_orbit_trials, "check_orbits_lanes", refuse)
+    with pytest.warns(RuntimeWarning, match="checking them vmapped instead"):
+        again = sweep(problem, freqs, config=cfg, progress=False,
+                      verify=VerifySettings(max_period=2, kernel_checks=True, settle=False)
+                      ).verdicts
+    np.testing.assert_array_equal(again["max_multiplier"], out[False]["max_multiplier"])
     plain = SweepProblem(problem.vector_field, problem.setup, problem.data, problem.y0,
                          problem.param)
     with pytest.raises(ValueError, match="component_field"):

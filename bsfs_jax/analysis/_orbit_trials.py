@@ -2,6 +2,8 @@
 with a converged residual, a minimal period, multipliers inside the unit circle and
 samples that follow the orbit's linearisation (see `_verify.py`)."""
 
+import warnings
+
 import numpy as np
 
 from .._numerics import half_range
@@ -59,11 +61,19 @@ class OrbitTrials:
                                    scs, ns, tol=s.orbit_tol, max_steps=s.orbit_max_steps,
                                    max_period=s.max_period, settings=s.orbit_settings)
             else:
-                chk = check_orbits_lanes(self.p.component_field, self.p.setup, self.p.data,
-                                         vals, ys, scs, ns, tol=s.orbit_tol,
-                                         max_steps=s.orbit_max_steps,
-                                         max_period=s.max_period,
-                                         settings=s.orbit_settings, **self.kernel)
+                try:
+                    chk = check_orbits_lanes(self.p.component_field, self.p.setup,
+                                             self.p.data, vals, ys, scs, ns, tol=s.orbit_tol,
+                                             max_steps=s.orbit_max_steps,
+                                             max_period=s.max_period,
+                                             settings=s.orbit_settings, **self.kernel)
+                except Exception as exc:  # noqa: BLE001 - the kernel's compiler refused it
+                    warnings.warn(f"orbit checks on the kernel failed ({type(exc).__name__}: "
+                                  f"{str(exc).splitlines()[0] if str(exc) else ''}); "
+                                  "checking them vmapped instead", RuntimeWarning,
+                                  stacklevel=2)
+                    self.kernel = None
+                    return self.orbits(items, again)
             host = {f: np.asarray(getattr(chk, f)) for f in
                     ("state", "converged", "residual", "multipliers", "strobe", "samples",
                      "jac_distance", "monodromy")}

@@ -92,8 +92,9 @@ class VerifySettings:
       to the blocks' budget. None (the default): where the sweep's engine is the kernel
       (on a GPU a lane of the kernel runs its own loop, ~10x faster than a lockstep block).
     - `kernel_checks`: run the orbit checks on the per-lane kernel
-      (`solvers.check_orbits_lanes`) with the sweep's kernel settings. None (the
-      default): where the sweep's engine is the kernel.
+      (`solvers.check_orbits_lanes`) with the sweep's kernel settings; None: where the
+      sweep's engine is the kernel. Off by default until its Triton build (42 components
+      a lane) is measured on a GPU (`benchmarks/bench_gpu.py --kernel-checks 1`).
     - `run_settings`: ODE settings of the continuation blocks (as a sweep's).
     """
 
@@ -124,7 +125,7 @@ class VerifySettings:
     wide: bool | None = None
     settle: bool | None = None
     settle_blocks: int = 2
-    kernel_checks: bool | None = None
+    kernel_checks: bool | None = False
     run_settings: SolverSettings = SolverSettings(solver="dopri5-fused", max_steps=4_000_000)
 
     def __post_init__(self):
