@@ -259,26 +259,53 @@ def test_kernel_engine_sharded_over_host_devices():
     assert r.returncode == 0 and "OK" in r.stdout, r.stderr[-3000:]
 
 
-def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(problem):
+def _duffing_components(t, y, args):
+    """x'' + delta x' + alpha x + beta x^3 = gamma cos(omega t) on components."""
+    delta, alpha, beta, gamma, omega = args
+    x, v = y
+    return v, gamma * jnp.cos(omega * t) - delta * v - alpha * x - beta * x * x * x
+
+
+def _gamma_setup(data, gamma):
+    return (data[0], data[1], data[2], gamma, data[3]), 2.0 * jnp.pi / data[3]
+
+
+@pytest.fixture(scope="module")
+def duffing_problem():
+    from bsfs_jax.analysis import SweepProblem
+    from tests.textbook import duffing
+
+    return SweepProblem(duffing, _gamma_setup, jnp.array([0.3, -1.0, 1.0, 1.2]),
+                        jnp.array([1.0, 0.0]), "gamma", component_field=_duffing_components)
+
+
+#: Holmes-Duffing at gamma 0.20 (period 1) and 0.28 (period 2), after 60 periods.
+_GAMMAS = np.array([0.20, 0.28])
+_DUFFING_CFG = dict(transient_periods=60, periods=8, samples_per_period=16, lyapunov=False,
+                    chunk_size=2, kernel_block=2)
+
+
+def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(duffing_problem):
     """`check_orbits_lanes` (every integration on the per-lane kernel: the variational
-    equations as 6 + 36 components, chord iterations, samples) against `check_orbits`
+    equations as d + d^2 components, chord iterations, samples) against `check_orbits`
     (vmapped fused loops) from the same sampled states, n = 1 and 2: the same orbits,
     iterations and multipliers to the checks' accuracy (~1e-6)."""
     from bsfs_jax.analysis._orbit_trials import scale_of
     from bsfs_jax.solvers import check_orbits, check_orbits_lanes
 
-    freqs = np.array([620.0, 2000.0])
-    cfg = SweepConfig(transient_periods=30, periods=2, samples_per_period=8, lyapunov=False,
-                      chunk_size=2, settings=SolverSettings(solver="dopri5-fused", **TOL))
-    res = sweep(problem, freqs, config=cfg, progress=False)
+    p = duffing_problem
+    res = sweep(p, _GAMMAS, config=SweepConfig(
+        settings=SolverSettings(solver="dopri5-fused", **TOL), **_DUFFING_CFG),
+        progress=False)
     y = np.asarray(res.strobe)[0, :, -1]
     scale = np.array([scale_of(a, s) for a, s in zip(np.asarray(res.amplitude)[0], y)])
     n = np.array([1, 2])
-    kw = dict(max_period=2, samples_per_period=8)
-    a = check_orbits(problem.vector_field, problem.setup, problem.data, freqs, y, scale, n,
-                     **kw)
-    b = check_orbits_lanes(problem.component_field, problem.setup, problem.data, freqs, y,
-                           scale, n, block=2, **kw)
+    # The layout the verifier's call in the next test uses (2 lanes, blocks of 2, 32
+    # samples a period, the kernel engine's fast controller): one program for both.
+    kw = dict(max_period=2, samples_per_period=32)
+    a = check_orbits(p.vector_field, p.setup, p.data, _GAMMAS, y, scale, n, **kw)
+    b = check_orbits_lanes(p.component_field, p.setup, p.data, _GAMMAS, y, scale, n,
+                           block=2, fast=True, **kw)
     assert np.asarray(b.converged).all() and np.asarray(a.converged).all()
     np.testing.assert_array_equal(np.asarray(b.steps), np.asarray(a.steps))
     amp = np.nanmax(np.abs(np.asarray(a.samples)), axis=1)  # (B, d); NaN past n T
@@ -286,47 +313,47 @@ def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(problem):
                                atol=1e-6 * amp.max())
     np.testing.assert_allclose(np.asarray(b.multipliers), np.asarray(a.multipliers),
                                rtol=0, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(b.monodromy), np.asarray(a.monodromy), rtol=0,
+                               atol=1e-5 * np.abs(np.asarray(a.monodromy)).max())
     for f in ("strobe", "samples"):
         x, z = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
         np.testing.assert_array_equal(np.isnan(z), np.isnan(x))
         assert np.nanmax(np.abs(z - x)) < 1e-6 * amp.max(), f
 
 
-def test_verifier_runs_its_checks_on_the_kernel_where_asked(problem, monkeypatch):
-    """`VerifySettings(kernel_checks=True)` sends the
-    verifier's orbit checks to `check_orbits_lanes`, and the verdicts are those of the
-    vmapped checks. Refused for a problem without a component field."""
+def test_verifier_runs_its_checks_on_the_kernel_where_asked(duffing_problem, monkeypatch):
+    """`VerifySettings(kernel_checks=True)` sends the verifier's orbit checks to
+    `check_orbits_lanes`, and the verdicts are those of the vmapped checks (period 1, and
+    period 2 from the samples' candidate period). Where the kernel's compiler refuses
+    them, they run vmapped with a warning. Refused for a problem without a component
+    field."""
     from bsfs_jax.analysis import SweepProblem, VerifySettings, _orbit_trials
 
+    p = duffing_problem
     calls = []
     lanes = _orbit_trials.check_orbits_lanes
     monkeypatch.setattr(_orbit_trials, "check_orbits_lanes",
                         lambda *a, **k: calls.append(len(a[3])) or lanes(*a, **k))
-    freqs = np.array([620.0, 2000.0])
-    cfg = SweepConfig(transient_periods=20, periods=4, samples_per_period=8, lyapunov=False,
-                      chunk_size=2, kernel_block=2,
-                      settings=SolverSettings(solver="dopri5-fused", **TOL))
-    out = {k: sweep(problem, freqs, config=cfg, progress=False,
-                    verify=VerifySettings(max_period=2, kernel_checks=k, settle=False)
-                    ).verdicts for k in (False, True)}
-    assert calls and set(calls) == {16}  # the checks' lanes (VerifySettings.batch)
+    cfg = SweepConfig(settings=SolverSettings(solver="dopri5-fused", **TOL), **_DUFFING_CFG)
+    ver = {k: VerifySettings(max_period=2, batch=2, kernel_checks=k, settle=False)
+           for k in (False, True)}
+    out = {k: sweep(p, _GAMMAS, config=cfg, progress=False, verify=ver[k]).verdicts
+           for k in (False, True)}
+    assert calls and set(calls) == {2}  # the checks' lanes (VerifySettings.batch)
     assert list(out[True]["motion"][0]) == list(out[False]["motion"][0]) == \
-        ["period-1", "period-1"]
+        ["period-1", "period-2"]
     np.testing.assert_allclose(out[True]["max_multiplier"], out[False]["max_multiplier"],
                                atol=1e-5)
     np.testing.assert_allclose(out[True]["amplitude"], out[False]["amplitude"], rtol=1e-5)
-    # Where the kernel's compiler refuses the checks, they run vmapped, with a warning.
+
     def refuse(*a, **k):
         raise RuntimeError("no Triton here")
 
     monkeypatch.setattr(_orbit_trials, "check_orbits_lanes", refuse)
     with pytest.warns(RuntimeWarning, match="checking them vmapped instead"):
-        again = sweep(problem, freqs, config=cfg, progress=False,
-                      verify=VerifySettings(max_period=2, kernel_checks=True, settle=False)
-                      ).verdicts
+        again = sweep(p, _GAMMAS, config=cfg, progress=False, verify=ver[True]).verdicts
     np.testing.assert_array_equal(again["max_multiplier"], out[False]["max_multiplier"])
-    plain = SweepProblem(problem.vector_field, problem.setup, problem.data, problem.y0,
-                         problem.param)
+    plain = SweepProblem(p.vector_field, p.setup, p.data, p.y0, p.param)
     with pytest.raises(ValueError, match="component_field"):
-        sweep(plain, freqs, config=cfg, progress=False,
+        sweep(plain, _GAMMAS, config=cfg, progress=False,
               verify=VerifySettings(kernel_checks=True))
