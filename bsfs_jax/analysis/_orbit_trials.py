@@ -4,6 +4,7 @@ samples that follow the orbit's linearisation (see `_verify.py`)."""
 
 import warnings
 
+import jax
 import numpy as np
 
 from .._numerics import half_range
@@ -12,6 +13,8 @@ from . import _evidence as ev
 from ._classify import strobe_period
 
 PERIODIC_PREFIX = "period-"
+#: Kernel-check layouts that failed in this process (`OrbitTrials.kernel_key`).
+_KERNEL_FAILED: set = set()
 
 
 def scale_of(amplitude, y):
@@ -32,8 +35,15 @@ class OrbitTrials:
         self.p, self.s, self.obs = problem, settings, observe
         self.lanes = int(settings.batch if lanes is None else lanes)
         # {"fast", "block"}: the checks on the per-lane kernel (`check_orbits_lanes`, on
-        # the problem's component field), else None (vmapped, `check_orbits`)
+        # the problem's component field), else None (vmapped, `check_orbits`); not where
+        # they failed before in this process (one warning, not one per chunk)
         self.kernel = kernel
+        if kernel is not None and self.kernel_key() in _KERNEL_FAILED:
+            self.kernel = None
+
+    def kernel_key(self):
+        """What a failure of the kernel checks is remembered by: the field, the lanes."""
+        return id(self.p.component_field), self.lanes, tuple(sorted((self.kernel or {}).items()))
 
     def prefetch(self) -> None:
         """Start compiling the orbit checks' program in the background (a sweep asks for
@@ -67,11 +77,13 @@ class OrbitTrials:
                                              max_steps=s.orbit_max_steps,
                                              max_period=s.max_period,
                                              settings=s.orbit_settings, **self.kernel)
+                    jax.block_until_ready(chk)  # a failure at run time falls back too
                 except Exception as exc:  # noqa: BLE001 - the kernel's compiler refused it
                     warnings.warn(f"orbit checks on the kernel failed ({type(exc).__name__}: "
                                   f"{str(exc).splitlines()[0] if str(exc) else ''}); "
                                   "checking them vmapped instead", RuntimeWarning,
                                   stacklevel=2)
+                    _KERNEL_FAILED.add(self.kernel_key())
                     self.kernel = None
                     return self.orbits(items, again)
             host = {f: np.asarray(getattr(chk, f)) for f in
@@ -190,8 +202,11 @@ class OrbitTrials:
                     spent[k] += run.periods * periods[k]
                     entries.append((k, values[k], strobes[j], amps[j], periods[k], ()))
             more, why = self.try_orbits(entries)
-            for k, v in more.items():  # transient: the time before the evidence's run
-                found[k] = {**v, "transient": used[k] - run.periods * periods[k]}
+            for k, v in more.items():  # transient: the time before the evidence (the record)
+                found[k] = {**v, "transient": used[k] - run.record_periods * periods[k]}
             reasons.update(why)
-            pending = [k for k in pending if k not in found]
+            # A point whose run failed goes straight to the long runs (the same state
+            # would fail the same way again here).
+            settled = {k for j, k in enumerate(pending) if ok[j]}
+            pending = [k for k in pending if k not in found and k in settled]
         return found, reasons, spent

@@ -204,16 +204,22 @@ def cold_chunk_size(config: SweepConfig, n_points: int, mesh) -> int:
 
 class SettleRuns:
     """The verifier's settle blocks on a cold sweep's own program: `periods` forcing
-    periods from given states, the last `config.periods` recorded as the sweep records
-    them. Called with (values (B,), states (B, n)), it returns (strobes (B, P + 1, n),
-    amplitudes (B, n), ok (B,)), the strobe's last point the state reached. Runs are
-    padded to the sweep's chunk of `chunk` points (the last one repeated), so the
-    sweep's compiled program serves them (on a GPU: the kernel, where a lane runs its
-    own loop; the verifier's long runs with the tangent dynamics are lockstep)."""
+    periods from given states, the last `config.periods` (`record_periods`) recorded as
+    the sweep records them. Called with (values (B,), states (B, n)), it returns (strobes
+    (B, P + 1, n), amplitudes (B, n), ok (B,)), the strobe's last point the state reached.
+    Runs are padded to the sweep's chunk of `chunk` points (the last one repeated), so
+    where the sweep ran per-point transients (a verified cold sweep's minimum transients)
+    its compiled program serves them (on a GPU: the kernel, where a lane runs its own
+    loop; the verifier's long runs with the tangent dynamics are lockstep). Not with the
+    tangent dynamics (`config.lyapunov`)."""
 
     def __init__(self, problem, config: SweepConfig, mesh, chunk: int, periods: int):
+        if config.lyapunov:
+            raise ValueError("settle blocks (VerifySettings.settle) run without the tangent "
+                             "dynamics: set SweepConfig(lyapunov=False) or settle=False")
         self.problem, self.config, self.mesh, self.chunk = problem, config, mesh, int(chunk)
-        self.periods = max(int(periods), int(config.periods) + 1)
+        self.record_periods = int(config.periods)
+        self.periods = max(int(periods), self.record_periods + 1)
 
     def __call__(self, values, states):
         values = np.asarray(values, dtype=float)

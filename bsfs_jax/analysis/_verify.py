@@ -91,6 +91,9 @@ class VerifySettings:
       tried for orbits after each (`_sweep_engines.SettleRuns`); their time is not charged
       to the blocks' budget. None (the default): where the sweep's engine is the kernel
       (on a GPU a lane of the kernel runs its own loop, ~10x faster than a lockstep block).
+    - `settle` and `kernel_checks` act through `sweep(..., verify=...)`, which builds the
+      settle runner and the kernel settings; `verify_sweep` / `verify_points` take them
+      as arguments (`settle=`, `kernel=`) and otherwise run neither.
     - `kernel_checks`: run the orbit checks on the per-lane kernel
       (`solvers.check_orbits_lanes`) with the sweep's kernel settings; None: where the
       sweep's engine is the kernel. Off by default until its Triton build (42 components
@@ -348,7 +351,11 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
             if codes[d, i] != 0:
                 out["motion"][d, i] = FAILED
                 out["reason"][d, i] = f"the sweep's integration failed: {texts[d, i]}"
-    tag = json.dumps([jsonable(settings.to_dict()), result.metadata.get("fingerprint"),
+    # The settings as resolved here (wide on this backend, settle blocks and kernel
+    # checks as given), so verdicts of another resolution are not reused.
+    resolved = dict(settings.to_dict(), wide=settings.is_wide(), settle=settle is not None,
+                    kernel_checks=kernel is not None)
+    tag = json.dumps([jsonable(resolved), result.metadata.get("fingerprint"),
                       np.asarray(n_tr).tolist()], sort_keys=True)
     folder = None if checkpoint_dir is None else Path(checkpoint_dir)
     from tqdm.auto import tqdm
