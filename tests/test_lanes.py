@@ -155,6 +155,25 @@ def test_kernel_unrolled_steps_give_the_same_lanes_bit_for_bit():
         np.testing.assert_array_equal(a[keep], b[keep])
 
 
+def test_kernel_lanes_stop_at_their_own_sample_counts():
+    """`lane_samples`: a lane stops after its own first samples, which are the full run's
+    bit for bit (the same steps up to there), in fewer steps; the start is unchanged."""
+    args = (jnp.array([0.05, 0.02]), jnp.array([1.0, 2.0]), jnp.ones(2),
+            jnp.array([1.3, 1.0]))
+    y0 = jnp.array([[0.1, 0.0], [0.0, 0.2]])
+    period = 2 * jnp.pi / args[3]
+    run = lambda **kw: integrate_lanes(
+        _oscillator, y0, args, 3 * period, period, n_samples=6, samples_per_period=2,
+        max_steps=10**5, block=2, backend="interpret", fast=True, **TOL, **kw)
+    full, short = run(), run(lane_samples=jnp.array([2, 6]))
+    np.testing.assert_array_equal(np.asarray(short[0]), np.asarray(full[0]))
+    np.testing.assert_array_equal(np.asarray(short[1])[0, :2], np.asarray(full[1])[0, :2])
+    np.testing.assert_array_equal(np.asarray(short[1])[1], np.asarray(full[1])[1])
+    steps_full, steps_short = np.asarray(full[4]), np.asarray(short[4])
+    assert steps_short[0] < steps_full[0] and steps_short[1] == steps_full[1]
+    np.testing.assert_array_equal(np.asarray(short[3]), 0)
+
+
 def test_kernel_reports_failures_per_lane_and_leaves_the_others_alone():
     """A lane out of steps and a lane with a NaN start get their `RESULTS` codes; a good
     lane of the same block gives what it gives alone."""

@@ -81,7 +81,8 @@ def _error_norm(err, y, y_new, rtol, atol, fast):
 
 
 def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, block, n_pad,
-            fast, unroll, p_ref, y0_ref, start_ref, end_ref, samples_ref, code_ref, steps_ref):
+            fast, unroll, per_lane, p_ref, y0_ref, start_ref, end_ref, samples_ref, code_ref,
+            steps_ref):
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
@@ -89,12 +90,15 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
     # Every ref is flat: row r of a (rows, n_pad) array starts at r * n_pad.
     rows = lambda ref, r: ref[pl.ds(r * n_pad + base, block)]
     t_rec, period = rows(p_ref, 0), rows(p_ref, 1)
-    flat = iter([rows(p_ref, 2 + i) for i in range(p_ref.shape[0] // n_pad - 2)])
+    # `per_lane`: row 2 holds each lane's own number of samples (<= n_samples)
+    head = 3 if per_lane else 2
+    n_last = rows(p_ref, 2) if per_lane else float(n_samples)
+    flat = iter([rows(p_ref, head + i) for i in range(p_ref.shape[0] // n_pad - head)])
     args = jax.tree_util.tree_unflatten(treedef, [_rebuild(flat, s, d) for s, d in layouts])
     lanes = base + jnp.arange(block, dtype=jnp.int32)
     y0 = tuple(rows(y0_ref, c) for c in range(n))
     zero = jnp.zeros(block, dtype=float)
-    t_end = t_rec + period * (float(n_samples) / spp)
+    t_end = t_rec + period * (n_last / spp)
 
     def f(t, y):
         return tuple(jnp.asarray(v, dtype=float) + zero for v in field(t, y, args))
@@ -151,7 +155,8 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
         switch = hit & ~recording
         # A sample is due; the lane's last one ends it.
         save = hit & recording
-        last = save & (s["k"] >= n_samples)
+        last = save & ((s["k"] >= n_samples) if not per_lane else
+                       (s["k"].astype(float) >= n_last))
         active = ok & ~last
         idx = (s["k"] - 1) * n_pad + lanes
 
@@ -207,7 +212,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
 def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
                     samples_per_period: int, rtol: float, atol: float, max_steps: int,
                     block: int = 32, num_warps: int = 1, backend: str | None = None,
-                    fast: bool = False, unroll: int = 1):
+                    fast: bool = False, unroll: int = 1, lane_samples=None):
     """Integrate N independent lanes of y' = field(t, y, args), each in its own loop.
 
     Lane i runs from t = 0 and state `y0[i]` to `t_record[i]` (its transient), then on over
@@ -229,6 +234,8 @@ def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
       from the fused loop's. With `fast=False` and the same field the kernel repeats the
       fused loop step for step.
     - `unroll`: steps per test of the loop's block-wide condition (the same results).
+    - `lane_samples` (N,) ints in 1..n_samples, optional: lane i stops after its own
+      first `lane_samples[i]` samples (the rest of its samples are undefined).
 
     Returns (start (N, n): the state at t_record, samples (N, n_samples, n), end (N, n),
     codes (N,) int32: `RESULTS` codes, 0 where successful; num_steps (N,) int32, both runs).
@@ -250,13 +257,17 @@ def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
         if n_pad > N else a
     cols = [jnp.broadcast_to(jnp.asarray(t_record, dtype=float), (N,)),
             jnp.broadcast_to(jnp.asarray(period, dtype=float), (N,))]
+    per_lane = lane_samples is not None
+    if per_lane:
+        cols.append(jnp.clip(jnp.broadcast_to(jnp.asarray(lane_samples, dtype=float), (N,)),
+                             1.0, float(n_samples)))
     cols += [jnp.asarray(leaf, dtype=float).reshape(N, -1).T for leaf in leaves]
     p = jnp.concatenate([jnp.atleast_2d(c) if c.ndim == 1 else c for c in cols], axis=0)
     p = pad(p.T).T
     kernel = functools.partial(
         _kernel, field, treedef, tuple(layouts), n, int(n_samples), float(samples_per_period),
         float(rtol), float(atol), int(max_steps), int(block), int(n_pad), bool(fast),
-        int(unroll))
+        int(unroll), per_lane)
     out_shape = (jax.ShapeDtypeStruct((n * n_pad,), float),
                  jax.ShapeDtypeStruct((n * n_pad,), float),
                  jax.ShapeDtypeStruct((n * n_samples * n_pad,), float),

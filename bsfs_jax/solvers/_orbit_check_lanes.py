@@ -12,7 +12,7 @@ kernel, in which each point's loop is its own:
 - chord iterations with that Newton matrix, one kernel call per iteration for every point
   (a point that has converged keeps its state: the iterations of each point are those of
   `check_orbits`);
-- the orbit's samples over max_period periods.
+- the orbit's samples over its n periods.
 
 The results are `check_orbits`' (`OrbitCheck`) to the integrator's error (a run is
 restarted where `check_orbits` saves on the way, and the kernel may run the fast forms),
@@ -117,18 +117,19 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     converged = ok & (res_norm <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z), axis=1)))
     mu = jax.vmap(lambda m: jnp.linalg.eigvals(m + eye))(j0)
     mu = jnp.take_along_axis(mu, jnp.argsort(-jnp.abs(mu), axis=1), axis=1)
-    # The orbit's samples at j T / spp, j = 1..max_period spp: the first saved at the end
-    # of the run, the others after it (each lane runs max_period periods; those past
-    # n T are dropped below, as `check_orbits` clips them).
+    # The orbit's samples at j T / spp, j = 1..n spp: the first saved at the end of the
+    # run, the others after it (a lane stops at its own n T, as `check_orbits` does; the
+    # samples past it are undefined and dropped below).
     m = max_period * spp
     first, rest, _, st, _ = integrate_lanes(
         g, z, sargs, period / spp, period, n_samples=m - 1, samples_per_period=spp,
         rtol=settings.rtol, atol=settings.atol, max_steps=settings.max_steps, block=block,
-        fast=fast)
+        fast=fast, lane_samples=jnp.maximum(n * spp - 1, 1))
     ys = jnp.concatenate([first[:, None], rest], axis=1) * scale[:, None, :]
     j = jnp.arange(1, m + 1, dtype=float)
     valid = (j[None] <= nf[:, None] * spp) & (st == _OK)[:, None]
-    samples = jnp.where(valid[..., None], ys, jnp.nan)
+    ys = jnp.where(valid[..., None], ys, jnp.nan)
+    samples = ys
     # Stroboscopic points o_1..o_max; past n T they repeat the state at n T.
     strobe = ys[:, spp - 1::spp]
     last = jnp.take_along_axis(strobe, (n - 1)[:, None, None], axis=1)
