@@ -331,8 +331,10 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
     # The verifier's orbit checks compile on the second core while the sweep integrates
     # (for the lanes `verify_sweep` will use: its chunk's, wide; else `verify.batch`).
     chunk = max(int(config.chunk_size), 16)
+    # (the points `verify_sweep` will see: every value once per direction)
+    n_keys = max(vals.size, 1) * (2 if mode != "cold" and direction == "both" else 1)
     OrbitTrials(problem, verify, problem.observe,
-                lanes=verify.lanes_for(min(chunk, max(vals.size, 1))), kernel=kernel).prefetch()
+                lanes=verify.lanes_for(min(chunk, n_keys)), kernel=kernel).prefetch()
     res = sweep(problem, values, mode=mode, direction=direction, config=config, y0=y0,
                 transient=transient, checkpoint_dir=checkpoint_dir, progress=progress,
                 shard=shard, segments=segments, metadata=metadata)
