@@ -6,16 +6,22 @@
 #   2. `bsfs map` over 256 x 256 points (frequency 100-4000 Hz x force 1000-8000 N,
 #      verified, no row continuations), cold, in a fresh process.
 # Usage (device): bash benchmarks/gpu_verified.sh [VERIFY_TIMEOUT_S] [ATLAS_TIMEOUT_S] [N]
-# Needs .whl/h5netcdf-*.whl carried (the image lacks h5netcdf). Rows go to $OUT.
+# (defaults 150 s for each of the two verified runs and 240 s for the map: 540 s in all,
+# inside one device call of at most 600 s; each verified run skips its second call once
+# 100 s are spent)
+# Needs the wheels of h5netcdf and tomli_w (the image lacks both) in .whl/, carried:
+#   echo /.whl/ >> .git/info/exclude
+#   .venv/bin/pip download --no-deps --only-binary=:all: -d .whl h5netcdf==1.8.2 tomli_w==1.2.0
+# Rows go to $OUT/gpu.jsonl.
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg BSFS_CACHE_DIR=/tmp/bsfs-cache
-python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl || exit 1
+python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl || exit 1
 export PYTHONPATH=/tmp/site:$PWD
 nvidia-smi --query-gpu=name,clocks.max.sm,driver_version --format=csv,noheader
 N=${3:-256}
-if [ "${1:-200}" != 0 ]; then
+if [ "${1:-150}" != 0 ]; then
   for kc in 1 0; do  # the orbit checks on the kernel, then vmapped (each a fresh process)
-    timeout "${1:-200}" python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 --points "" \
-      --numba-points "" --vmap-points "" --verify-points 2048 --budget 120 --kernel-checks $kc
+    timeout "${1:-150}" python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 --points "" \
+      --numba-points "" --vmap-points "" --verify-points 2048 --budget 100 --kernel-checks $kc
   done
 fi
 t0=$(date +%s.%N)
