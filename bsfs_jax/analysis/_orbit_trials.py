@@ -157,16 +157,11 @@ class OrbitTrials:
         for key, value, strobe, amp, period, extra in entries:
             y = strobe[-1]
             sc = scale_of(amp, y)
-            if first:
-                ns = sorted({1, *extra})
-                if candidates:
-                    cand = strobe_period(strobe, scale=sc, max_period=self.s.max_period,
-                                         tol=self.s.candidate_tol)
-                    ns += [cand] if cand > 1 and cand not in ns else []
-            else:
+            ns = sorted({1, *extra}) if first else []
+            if candidates or not first:  # the period of the samples' loose repetition
                 cand = strobe_period(strobe, scale=sc, max_period=self.s.max_period,
                                      tol=self.s.candidate_tol)
-                ns = [cand] if cand > 1 and cand not in extra else []
+                ns += [cand] if cand > 1 and cand not in extra else []
             for n in ns:
                 items.append((value, y, sc, n))
                 owners.append((key, n, strobe, sc, period))

@@ -128,10 +128,9 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     ys = jnp.concatenate([first[:, None], rest], axis=1) * scale[:, None, :]
     j = jnp.arange(1, m + 1, dtype=float)
     valid = (j[None] <= nf[:, None] * spp) & (st == _OK)[:, None]
-    ys = jnp.where(valid[..., None], ys, jnp.nan)
-    samples = ys
+    samples = jnp.where(valid[..., None], ys, jnp.nan)
     # Stroboscopic points o_1..o_max; past n T they repeat the state at n T.
-    strobe = ys[:, spp - 1::spp]
+    strobe = samples[:, spp - 1::spp]
     last = jnp.take_along_axis(strobe, (n - 1)[:, None, None], axis=1)
     strobe = jnp.where((jnp.arange(1, max_period + 1)[None] <= n[:, None])[..., None],
                        strobe, last)
