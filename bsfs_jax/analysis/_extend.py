@@ -55,6 +55,6 @@ def run_block(problem, values, y, v, *, periods: int, samples_per_period: int,
         rep = np.concatenate([np.arange(B), np.full(pad_to - B, B - 1)])
         values, y, v = values[rep], y[rep], v[rep]
     out = _block(problem.vector_field, problem.setup, problem.data,
-                 jnp.asarray(values), jnp.asarray(y), jnp.asarray(v), int(periods),
-                 int(samples_per_period), settings)
+                 *(jnp.asarray(a, dtype=float) for a in (values, y, v)), int(periods),
+                 int(samples_per_period), settings)  # (with dtype: no staging program)
     return Block(*(np.asarray(a)[:B] for a in out))

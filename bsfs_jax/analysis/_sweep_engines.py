@@ -230,8 +230,9 @@ class SettleRuns:
         for lo in range(0, B, C):
             hi = min(lo + C, B)
             pos = np.concatenate([np.arange(lo, hi), np.full(C - (hi - lo), hi - 1)])
-            out = _cold_chunk(self.problem, jnp.asarray(values[pos]), jnp.asarray(states[pos]),
-                              n_tr, self.config, self.mesh)
+            out = _cold_chunk(self.problem, jnp.asarray(values[pos], dtype=float),
+                              jnp.asarray(states[pos], dtype=float), n_tr, self.config,
+                              self.mesh)
             if self.mesh is not None and jax.process_count() > 1:
                 from jax.experimental import multihost_utils
 
