@@ -189,3 +189,27 @@ def test_static_functions_of_bsfs_jax_are_named_others_are_not_kept():
     assert key != _programs._key(_poly.__wrapped__, ((kernel_vector_field, 2), {}), treedef,
                                  leaves)
     assert _programs._key(_poly.__wrapped__, ((mine, 2), {}), treedef, leaves) is None
+
+
+def test_prefetch_compiles_only_after_a_foreground_compilation():
+    """A prefetch's XLA compilation waits while one outside the prefetch thread is marked
+    (`foreground_compile`): two compilations at once were slower than in turn."""
+    import threading
+
+    started = threading.Event()
+
+    @jax.jit
+    def f(x):
+        return jnp.sin(x) * 3.0 + x
+
+    class Lowered:  # a stand-in that records when its compile starts
+        def compile(self):
+            started.set()
+            return f.lower(jnp.ones(3)).compile()
+
+    with _programs.foreground_compile():
+        fut = _programs.in_background(lambda: _programs.compile_in_background(Lowered()))
+        assert not started.wait(0.5)  # held while the foreground compiles
+        assert not fut.done()
+    assert started.wait(30.0)
+    fut.result(timeout=60.0)

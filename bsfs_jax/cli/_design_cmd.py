@@ -155,9 +155,10 @@ def run_sensitivity(args) -> int:
     out = ui.out_dir(args.out)
     t0 = time.perf_counter()
     try:
-        # The value program of the probes compiles beside the search (the gradient's too).
+        # The gradient's program compiles beside the search; the probes take their values
+        # from it, a full check (--check-fd) from the value program.
         prefetch_programs(metric.name, params, names, frequency_hz=args.frequency,
-                          force_n=args.force, value=not args.no_fd_probe or args.check_fd)
+                          force_n=args.force, value=args.check_fd)
         res = sensitivities(metric.name, params, names, frequency_hz=args.frequency,
                             force_n=args.force)
         t_ad = time.perf_counter() - t0

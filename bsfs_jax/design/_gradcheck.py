@@ -82,7 +82,8 @@ def probe_gradient(metric_name: str, params: BallScrewParams, exact: Sensitivity
     of `metric_name` at `params`), compared with it (see `compare_gradients`)."""
     fd = finite_difference_sensitivities(metric_name, params, exact.names,
                                          frequency_hz=frequency_hz, force_n=force_n,
-                                         settings=settings, only=largest_entries(exact, k))
+                                         settings=settings, only=largest_entries(exact, k),
+                                         gradient_program=exact.method == "implicit AD")
     return compare_gradients(exact, fd)
 
 

@@ -11,6 +11,7 @@ is unit-free: a 1 % increase of p_i changes the metric by about S_i %.
 
 import dataclasses
 import functools
+from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
 import jax
@@ -22,6 +23,9 @@ from ..params import BallScrewParams, lookup_key
 from ._catalogue import DEFAULT_FORCE_N, DEFAULT_FREQUENCY_HZ, DESIGN_PARAMETERS
 from ._metrics import Metric, OperatingPoint, get_metric
 from ._orbit import OrbitSettings
+
+#: Threads for the perturbed searches of `finite_difference_sensitivities`.
+FD_WORKERS = 2
 
 
 def check_parameter_names(names) -> tuple[str, ...]:
@@ -256,7 +260,7 @@ def prefetch_programs(metric_name: str, params: BallScrewParams, names=DESIGN_PA
     value_fn, _ = compiled(metric.name, names, _pinned(settings, layout))  # the probes'
     started = 0
     for fn, wanted in ((grad_fn, gradient), (value_fn, value)):
-        start = getattr(fn.func, "prefetch_now", None)
+        start = getattr(fn.func, "prefetch", None)
         if wanted and start is not None:
             started += bool(start(theta, params, op, layout, **fn.keywords))
     return started
@@ -288,13 +292,16 @@ def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAME
 def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
                                     names=DESIGN_PARAMETERS, *, frequency_hz=None,
                                     force_n=None, rel_step: float = 1e-4,
-                                    settings: OrbitSettings = OrbitSettings(), only=None
-                                    ) -> SensitivityResult:
+                                    settings: OrbitSettings = OrbitSettings(), only=None,
+                                    gradient_program: bool = False) -> SensitivityResult:
     """The same by central finite differences (2 evaluations per parameter), for checks.
 
     `only`: difference just these of `names` (a probe of the largest entries); the value
     function is still the one compiled for all of `names`, so a probe reuses it. The
-    result then holds the entries of `only`.
+    result then holds the entries of `only`. `gradient_program`: take the values from
+    the value-and-gradient program that `sensitivities` compiled (for a probe after it:
+    a few evaluations then cost less than compiling the value program; the value is the
+    same computation, the gradient is dropped).
     """
     metric, names, op = check_design_inputs(metric_name, params, names,
                                             frequency_hz=frequency_hz, force_n=force_n)
@@ -306,8 +313,12 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     # The perturbed searches start from the nominal one's result (the FRC peak: a short
     # continuation around the nominal peak instead of the whole band).
     hint0, near = _locate(metric, params, op, settings)
+    if gradient_program:
+        # the value of (value, gradient); with a hint the program ignores `settings`
+        value_fn = _first(compiled(metric.name, names, settings)[1])
     settings = _pinned(settings, hint0)
-    value_fn, _ = compiled(metric.name, names, settings)
+    if not gradient_program:
+        value_fn, _ = compiled(metric.name, names, settings)
 
     def at(th, hint=None):  # a metric with a host-side search (the FRC peak) searches again
         if hint is None:
@@ -316,17 +327,33 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
         return float(value_fn(jnp.asarray(th), params, op, hint))
 
     value = at(theta, hint0)  # the nominal search is the one already done
-    grad = np.zeros(len(which))
-    for j, i in enumerate(which):
+    steps, points = [], []
+    for i in which:
         h = rel_step * max(abs(theta[i]), 1e-12)
         up, down = theta.copy(), theta.copy()
         up[i] += h
         down[i] -= h
-        grad[j] = (at(up) - at(down)) / (2 * h)
+        steps.append(h)
+        points += [up, down]
+    if metric.locate is not None and len(points) > 1:
+        # Each perturbed search is a host loop of small programs (a continuation): two at
+        # a time on two threads, as `bsfs map` continues its rows (same results: each
+        # search is independent and deterministic).
+        with ThreadPoolExecutor(max_workers=FD_WORKERS,
+                                thread_name_prefix="bsfs-fd") as pool:
+            values = list(pool.map(at, points))
+    else:
+        values = [at(th) for th in points]
+    grad = np.array([(values[2 * j] - values[2 * j + 1]) / (2 * h)
+                     for j, h in enumerate(steps)])
     _check_finite(value, metric, op)
     _check_finite(grad, metric, op, what="finite-difference gradient of")
     return _result(metric, op, tuple(names[i] for i in which), theta[which], value, grad,
                    f"central FD (rel. step {rel_step:g})")
+
+
+def _first(fn):
+    return lambda *args: fn(*args)[0]
 
 
 def _result(metric, op, names, theta, value_si, grad_si, method) -> SensitivityResult:

@@ -186,7 +186,7 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
     by the other method): its tracing runs on the second core while this thread computes.
     Returns the future; wait for it before that continuation (`_programs.settle`; else
     both compile it)."""
-    from .._programs import in_background
+    from .._programs import compile_in_background, in_background
     from ._orbit import _init_core
     from ._shooting import default_scale, float_leaves_to_arrays
 
@@ -208,7 +208,7 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
             _kept_corrector.prefetch_now(fam, *example, *statics)
             return
         dyn, static = eqx.partition(fam, eqx.is_array)
-        _compiled(static, *statics).lower(dyn, *head, *no_chord(n)).compile()
+        compile_in_background(_compiled(static, *statics).lower(dyn, *head, *no_chord(n)))
 
     return in_background(job)
 

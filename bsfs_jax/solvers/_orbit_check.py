@@ -165,7 +165,7 @@ def prefetch_check_orbits(vector_field, setup, data, batch: int, n_states: int, 
     # is not prefetched again once loaded or pending); any other is compiled by jit and
     # waited for here (`check_orbits`).
     if _check_batch.keeps(*args):
-        _check_batch.prefetch_now(*args)
+        _check_batch.prefetch(*args)
     else:
         _PREFETCHED[key] = prefetch_jit(_check_batch.plain, *args)
 
