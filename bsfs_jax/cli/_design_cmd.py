@@ -1,5 +1,6 @@
 """`bsfs sensitivity` and `bsfs optimize`: design gradients and optimisation."""
 
+import importlib
 import math
 import sys
 import time
@@ -128,6 +129,7 @@ def _check_line(check: dict) -> str:
 
 
 def run_sensitivity(args) -> int:
+    from .._programs import in_background
     from ..design import (
         DESIGN_PARAMETERS,
         check_design_inputs,
@@ -141,7 +143,6 @@ def run_sensitivity(args) -> int:
         probe_gradient,
         sensitivities,
     )
-    from ..plotting import tornado
 
     params = ui.load_params_from_args(args)
     names = _names(args.vary) if args.vary else DESIGN_PARAMETERS
@@ -159,6 +160,8 @@ def run_sensitivity(args) -> int:
         # from it, a full check (--check-fd) from the value program.
         prefetch_programs(metric.name, params, names, frequency_hz=args.frequency,
                           force_n=args.force, value=args.check_fd)
+        # The figure's modules (matplotlib, 0.5 s) load there after them, not here first.
+        in_background(lambda: importlib.import_module("bsfs_jax.plotting"))
         res = sensitivities(metric.name, params, names, frequency_hz=args.frequency,
                             force_n=args.force)
         t_ad = time.perf_counter() - t0
@@ -193,6 +196,8 @@ def run_sensitivity(args) -> int:
                                                    "expected", "normalised", "agrees")}
                                 for r in rows]
     ui.write_json(out / "sensitivity.json", data)
+    from ..plotting import tornado
+
     fig = tornado(res, compare=fd)
     ui.save_figure(fig, out / "sensitivity.png")
     md = [f"# Sensitivity of {metric.label}", "",
