@@ -32,7 +32,7 @@ import bsfs_jax
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
 from . import _model
-from ._choice import MODEL_ERROR, is_frf, keep_marginal, same_choice, screen
+from ._choice import MODEL_ERROR, is_frf, keep_marginal, line_bound, same_choice, screen
 from ._groups import build_data, used_rows
 from ._lm import NO_INFORMATION_STD
 from ._parameters import DEFAULT_FIT, FIT_PARAMETERS, MAX_HARMONIC_FRACTION
@@ -50,7 +50,8 @@ class Problem:
     where its own predicted error `linearisation_z[i][1]` is; else the periodic orbit by
     harmonic balance; see `_choice.py`), "linear", "first-order" or "nonlinear". FRF records use
     the linearised model (the small-signal FRF); in "auto" the lines of a chirp whose
-    predicted error exceeds `model_error` are left out (`frf_left_out`).
+    predicted error exceeds `line_bound(model_error)` (a tenth of it) are left out
+    (`frf_left_out`).
     `nonlinear_ratio`: instead of the error rule, choose by the joint amplitude / preload
     deformation (planning, where the noise is not known yet).
     `priors`: {name: sigma of theta}, "default" (each parameter's `prior_sigma`) or None
@@ -125,10 +126,11 @@ class Problem:
              else "linear" if z[0] <= model_error else
              "first-order" if z[1] <= model_error else "nonlinear")
             for d, r, z in zip(self.data, self.amplitude_ratios, self.linearisation_z)]
-        # Chirp lines the linear FRF cannot model within `model_error`: left out.
-        self.frf_left_out = {i: np.asarray(z) > model_error
+        # Chirp lines the linear FRF cannot model within their bound: left out.
+        bound = line_bound(model_error)
+        self.frf_left_out = {i: np.asarray(z) > bound
                              for i, (d, z) in enumerate(zip(self.data, self.linearisation_z))
-                             if is_frf(d) and z is not None and np.any(np.asarray(z) > model_error)}
+                             if is_frf(d) and z is not None and np.any(np.asarray(z) > bound)}
         if frf_left_out is not None:
             self.frf_left_out = dict(frf_left_out)
         if previous is not None:

@@ -10,6 +10,7 @@ import numpy as np
 
 import bsfs_jax
 
+from ._choice import line_bound
 from ._fit import FitResult, fit, gate_steady_state
 from ._measurement import HarmonicData, harmonic_analysis
 from ._misfit import gate_record_misfit
@@ -345,7 +346,8 @@ def report_dict(res: IdentificationResult) -> dict:
                               "balance, from the record's measured state or its sweep), "
                               f"the simplest whose predicted error is below {MODEL_ERROR:g} "
                               "standard errors; chirp/random/hammer: FRF lines vs the "
-                              "linearised FRF, a chirp's lines beyond that bound left out",
+                              "linearised FRF, a chirp's lines whose predicted error exceeds "
+                              f"{line_bound(MODEL_ERROR):g} standard errors left out",
             model_choice=fr.model_choice, orbit_harmonics=pb.structure.orbit_harmonics,
             model_issues=[dict(kind=k, text=t) for k, t in zip(fr.model_issue_kinds,
                                                                 fr.model_issues)]),

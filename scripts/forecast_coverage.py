@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -228,13 +229,21 @@ def overlay(rows: list[dict], lift_rows: list[dict], tag: str = "liftoff_pass") 
     return out
 
 
+def _over() -> dict:
+    """Diagnosis: the test's imperfections changed from `identification.TestEffects` by the
+    environment variable BSFS_COVERAGE_EFFECTS (JSON, e.g. '{"force_snr_db": 200}'; the
+    worker processes inherit it). Empty: the study as documented."""
+    text = os.environ.get("BSFS_COVERAGE_EFFECTS", "")
+    return {"effects": json.loads(text)} if text else {}
+
+
 def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
     truth, prior = truth_params(), bsfs_jax.preset()
     truth_file = OUT / f"{force:g}N_truth.json"
     t_start = time.perf_counter()
     for j, k in enumerate(todo):
         t0 = time.perf_counter()
-        recs = synth_records(truth, k, {})
+        recs = synth_records(truth, k, _over())
         t1 = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix=f"bsfs-fc{k}-") as tmp:
             res = identified_folder(recs, prior, Path(tmp))
