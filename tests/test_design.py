@@ -284,6 +284,22 @@ def test_frc_peak_gradient_matches_continuation_peaks_on_a_folded_curve(frc_100n
     assert np.all(ad.normalised > 0)
 
 
+def test_probe_takes_its_values_from_the_gradient_program(params, frc_100n):
+    """`bsfs sensitivity`'s probe (`probe_gradient`) differences the peak with the values of
+    the gradient's own program (its searches on two threads): the same quotients as the
+    value program's (`finite_difference_sensitivities` above) to the searches' accuracy."""
+    from bsfs_jax.design import probe_gradient
+
+    ad, fd = frc_100n
+    out = probe_gradient("frc_peak", params, ad, k=2, force_n=100.0, settings=FRC_100N)
+    assert out["passed"]
+    probed = finite_difference_sensitivities(
+        "frc_peak", params, FRC_NAMES, force_n=100.0, settings=FRC_100N, only=FRC_NAMES,
+        gradient_program=True)
+    np.testing.assert_allclose(probed.gradient, fd.gradient, rtol=1e-6)
+    assert probed.value == pytest.approx(fd.value, rel=1e-12)
+
+
 def test_peak_search_near_a_branch_finds_the_whole_band_peak(params):
     """The finite differences' search (`locate_frc_peak_near`: a short continuation of the
     perturbed drive from the nominal branch's stretch around its peak) finds the peak the
