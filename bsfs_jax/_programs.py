@@ -236,7 +236,7 @@ def _worker(jobs: queue.SimpleQueue) -> None:
 @contextlib.contextmanager
 def foreground_compile():
     """Mark an XLA compilation outside the prefetch thread: prefetches wait with theirs
-    until it ends (`after_foreground`). `cached_jit` marks its own; use it around an
+    until it ends (`compile_in_background`). `cached_jit` marks its own; use it around an
     explicit `.compile()` whose result the caller waits for."""
     global _foreground_compiles
     if threading.current_thread().name == _WORKER:
@@ -252,16 +252,11 @@ def foreground_compile():
             _foreground.notify_all()
 
 
-def after_foreground() -> None:
-    """In a prefetch job, before its compilation: wait while a compilation marked by
+def compile_in_background(lowered):
+    """`lowered.compile()` for a prefetch job, once no compilation marked by
     `foreground_compile` runs."""
     with _foreground:
         _foreground.wait_for(lambda: _foreground_compiles == 0)
-
-
-def compile_in_background(lowered):
-    """`lowered.compile()` for a prefetch job, after any foreground compilation."""
-    after_foreground()
     return lowered.compile()
 
 

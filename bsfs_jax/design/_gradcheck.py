@@ -14,7 +14,12 @@ import numpy as np
 
 from ..params import BallScrewParams
 from ._orbit import OrbitSettings
-from ._sensitivity import SensitivityResult, finite_difference_sensitivities, sensitivities
+from ._sensitivity import (
+    IMPLICIT_AD,
+    SensitivityResult,
+    finite_difference_sensitivities,
+    sensitivities,
+)
 
 #: Largest relative disagreement that passes (differences of orbit metrics carry ~1e-4 of
 #: noise from the solver tolerances; a wrong derivative is off by far more).
@@ -83,7 +88,7 @@ def probe_gradient(metric_name: str, params: BallScrewParams, exact: Sensitivity
     fd = finite_difference_sensitivities(metric_name, params, exact.names,
                                          frequency_hz=frequency_hz, force_n=force_n,
                                          settings=settings, only=largest_entries(exact, k),
-                                         gradient_program=exact.method == "implicit AD")
+                                         gradient_program=exact.method == IMPLICIT_AD)
     return compare_gradients(exact, fd)
 
 

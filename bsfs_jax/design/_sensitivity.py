@@ -26,6 +26,8 @@ from ._orbit import OrbitSettings
 
 #: Threads for the perturbed searches of `finite_difference_sensitivities`.
 FD_WORKERS = 2
+#: `SensitivityResult.method` of `sensitivities` (exact gradients).
+IMPLICIT_AD = "implicit AD"
 
 
 def check_parameter_names(names) -> tuple[str, ...]:
@@ -286,7 +288,7 @@ def sensitivities(metric_name: str, params: BallScrewParams, names=DESIGN_PARAME
     value, grad = float(value), np.asarray(grad)
     _check_finite(value, metric, op)
     _check_finite(grad, metric, op, what="gradient of")
-    return _result(metric, op, names, theta, value, grad, "implicit AD")
+    return _result(metric, op, names, theta, value, grad, IMPLICIT_AD)
 
 
 def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
@@ -313,12 +315,12 @@ def finite_difference_sensitivities(metric_name: str, params: BallScrewParams,
     # The perturbed searches start from the nominal one's result (the FRC peak: a short
     # continuation around the nominal peak instead of the whole band).
     hint0, near = _locate(metric, params, op, settings)
-    if gradient_program:
-        # the value of (value, gradient); with a hint the program ignores `settings`
-        value_fn = _first(compiled(metric.name, names, settings)[1])
-    settings = _pinned(settings, hint0)
-    if not gradient_program:
-        value_fn, _ = compiled(metric.name, names, settings)
+    pinned = _pinned(settings, hint0)
+    # the gradient's program as `sensitivities` compiled it, its value taken (with a hint
+    # it ignores `settings`), or the value program of the pinned discretisation
+    value_fn = (_first(compiled(metric.name, names, settings)[1]) if gradient_program
+                else compiled(metric.name, names, pinned)[0])
+    settings = pinned
 
     def at(th, hint=None):  # a metric with a host-side search (the FRC peak) searches again
         if hint is None:
