@@ -379,3 +379,19 @@ def test_frc_plot_segments(duffing_frc, tmp_path):
     assert styles == {"-", "--"}
     fig.savefig(tmp_path / "duffing_frc.png")
     plt.close(fig)
+
+
+def test_bifurcations_without_the_peaks(duffing_frc):
+    """`find_peaks=False` (`bsfs map`'s rows) skips the peaks' location only: the same
+    points and folds, located, and no peak."""
+    family = frequency_family(**HARDENING)
+    branch = continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                             vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                             p_scale=1.0, amplitude_index=0, find_peaks=False)
+    assert duffing_frc.peaks and not branch.peaks
+    np.testing.assert_allclose(branch.p, duffing_frc.p, rtol=1e-12)
+    folds = [b.p for b in branch.bifurcations if b.kind == "fold" and b.located]
+    assert len(folds) == 2
+    np.testing.assert_allclose(folds, [b.p for b in duffing_frc.bifurcations
+                                       if b.kind == "fold"], rtol=1e-12)
+    assert branch.info["corrector_calls"] < duffing_frc.info["corrector_calls"]

@@ -290,12 +290,18 @@ def test_second_order_chord_converges_to_the_orbit():
     assert float(jnp.max(jnp.abs(zs[-1] - zs[-2]))) < 1e-12
 
 
-@pytest.mark.parametrize("method", [Shooting(), HarmonicBalance(harmonics=32,
-                                                                max_harmonics=32)],
-                         ids=["shooting", "harmonic-balance"])
-def test_implicit_gradients_through_contact_loss(bsfs_point, method):
+@pytest.mark.parametrize("method,agree", [
+    (Shooting(), 1e-8),
+    (Shooting(settings=SolverSettings(rtol=1e-11, atol=1e-13, solver="dopri8-fused")), 1e-6),
+    (HarmonicBalance(harmonics=32, max_harmonics=32), 1e-8)],
+    ids=["shooting", "shooting-fused", "harmonic-balance"])
+def test_implicit_gradients_through_contact_loss(bsfs_point, method, agree):
     """d(nut amplitude)/d(force, nut mass) by ImplicitReverse (grad) and ImplicitForward
-    (jacfwd) against central differences of the solved orbit."""
+    (jacfwd) against central differences of the solved orbit. The two modes agree to
+    `agree`: 1e-8 where both differentiate one discretisation; the fused 8(7) loop has no
+    reverse mode, so with it ImplicitReverse differentiates diffrax's Dopri8 flow at the
+    same orbit, and the two differ by the integrators' error in the derivative (7e-8
+    measured)."""
     family, _, period, guess, shoot = bsfs_point
     vf = family.vector_field
     start = shoot.state
@@ -314,6 +320,6 @@ def test_implicit_gradients_through_contact_loss(bsfs_point, method):
     fd = np.array([(float(amplitude(theta.at[i].add(h[i]), ImplicitForward()))
                     - float(amplitude(theta.at[i].add(-h[i]), ImplicitForward()))) / (2 * h[i])
                    for i in range(2)])
-    np.testing.assert_allclose(g_rev, g_fwd, rtol=1e-8)
+    np.testing.assert_allclose(g_rev, g_fwd, rtol=agree)
     np.testing.assert_allclose(g_rev, fd, rtol=1e-4)
 

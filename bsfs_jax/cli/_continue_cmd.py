@@ -51,8 +51,9 @@ def register(sub) -> None:
     p.add_argument("--atol", type=ui.positive_float, default=1e-13,
                    help="ODE atol, on states scaled to order one (1e-13)")
     p.add_argument("--solver", default="dopri8",
-                   choices=("dopri8", "dopri5", "tsit5", "kvaerno5"),
-                   help="ODE solver (dopri8)")
+                   choices=("dopri8", "dopri8-fused", "dopri5", "tsit5", "kvaerno5"),
+                   help="shooting's ODE solver (dopri8); dopri8-fused takes the same steps "
+                   "3-4x faster but compiles about 8 s longer: for long shooting branches")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_continue)

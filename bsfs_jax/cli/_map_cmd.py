@@ -219,10 +219,12 @@ def run(args) -> int:
         frequencies=[*(x if args.x == FREQUENCY else []), *(ys if args.y == FREQUENCY else []),
                      args.frequency])
     notes = []
+    pending = None
 
     def row_bifurcations(y):
+        from .._programs import settle
         from ..machine import bsfs_family, simulate
-        from ..solvers import HarmonicBalance, Shooting, continue_orbits
+        from ..solvers import FUSED_SHOOTING_SETTINGS, HarmonicBalance, Shooting, continue_orbits
         from ._continue_cmd import continue_by_method
 
         p, _, force = row(y)
@@ -236,14 +238,18 @@ def run(args) -> int:
                             samples_per_period=spp)
             guess = traj.host_state()[:spp]
             family = bsfs_family(p, force)
+            settle(pending)
+            # Shooting by the fused 8(7) loop: its program compiles ~7 s longer than
+            # diffrax's, but each of a row's ~200 corrector calls takes half the time.
             branch, why = continue_by_method(
                 lambda method: continue_orbits(family, guess, lo, hi, method=method,
                                                ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
                                                max_points=args.max_points,
-                                               amplitude_index=2, locate_iters=LOCATE_ITERS),
+                                               amplitude_index=2, locate_iters=LOCATE_ITERS,
+                                               find_peaks=False),
                 args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol,
                                              second_order=True),
-                Shooting(), args.hb_tol)
+                Shooting(settings=FUSED_SHOOTING_SETTINGS), args.hb_tol)
             for w in why:
                 notes.append(f"{args.y} = {y:g}: {w}")
         except Exception as exc:  # noqa: BLE001 - a row without curves is reported
@@ -281,6 +287,18 @@ def run(args) -> int:
                             block_periods=args.block_periods,
                             align_periods=min(16, args.block_periods // 4))
     folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
+    if bifs is not None and args.method == "shooting":
+        # The rows' corrector is the longest compilation of a cold map (traced ~4 s,
+        # compiled 7-14 s): start it first, on the background thread, from the first
+        # row's family (its layout needs only the state's size, six).
+        from ..machine import bsfs_family
+        from ..solvers import FUSED_SHOOTING_SETTINGS, Shooting, prefetch_corrector
+
+        p0, _, force0 = row(ys[0])
+        family0 = bsfs_family(p0, force0)
+        pending = prefetch_corrector(
+            family0, family0.vector_field, Shooting(settings=FUSED_SHOOTING_SETTINGS),
+            np.zeros(6), x[0] if args.band is None else args.band[0], amplitude_index=2)
     try:
         result = atlas(
             row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,

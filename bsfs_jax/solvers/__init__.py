@@ -39,6 +39,7 @@ from ._results import result_from_codes as result_from_codes
 from ._results import result_message as result_message
 from ._results import result_ok as result_ok
 from ._results import result_text as result_text
+from ._shooting import FUSED_SHOOTING_SETTINGS as FUSED_SHOOTING_SETTINGS
 from ._shooting import SHOOTING_SETTINGS as SHOOTING_SETTINGS
 from ._shooting import Shooting as Shooting
 from ._shooting import period_map as period_map

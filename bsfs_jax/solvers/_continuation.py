@@ -48,7 +48,8 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                     n_periods: int = 1, scale=None, p_scale: float | None = None,
                     tol: float = 1e-8, max_newton: int = 8, max_angle: float = 0.3,
                     amplitude_index: int = 0, locate: bool = True, locate_iters: int = 14,
-                    normalise: bool = True, trim: bool = True, progress=False) -> Branch:
+                    find_peaks: bool = True, normalise: bool = True, trim: bool = True,
+                    progress=False) -> Branch:
     """Follow a branch of n T-periodic orbits from p_start towards p_stop.
 
     **Main arguments:**
@@ -76,6 +77,8 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
       or turns the tangent by more than `max_angle` [rad] is halved.
     - `amplitude_index`: the coordinate whose half peak-to-peak is `Branch.amplitude`.
     - `locate`: locate events by regula falsi (`locate_iters` corrector calls each).
+    - `find_peaks`: also find the amplitude's maxima along the branch (`Branch.peaks`; False
+      skips their location, e.g. where only the bifurcations are wanted).
     - `progress`: True for a tqdm bar, or a callable(n_points, p).
 
     **Returns:** a `Branch`; raises `SolverError` if the first orbit cannot be found.
@@ -229,6 +232,8 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     bifurcations, peaks = [], []
     for index, k, kind in events:
         if kind == "peak":
+            if not find_peaks:
+                continue
             pk = locate_peak(kernel, points[index], points[index + 1], index,
                              locate_iters if locate else 0)
             if pk is not None:

@@ -30,7 +30,8 @@ class SolverSettings:
     - `rtol`, `atol`: local error tolerances of the adaptive step-size controller.
     - `max_steps`: hard cap on steps per solve (diffrax semantics).
     - `solver`: diffrax's "tsit5" (default), "dopri5", "dopri8" or "kvaerno5" (stiff); or
-      "dopri5-fused", the fast forward-only path of `_fused.py` (no reverse-mode gradients).
+      "dopri5-fused" / "dopri8-fused", the fast forward-mode loops of `_fused.py` (with a
+      reverse-mode `adjoint`, `integrate` runs diffrax's Dopri5 / Dopri8 instead).
     - `dt0`: initial step [s], or None to let diffrax choose.
     """
 
@@ -54,6 +55,8 @@ _SOLVERS = {
 
 
 FUSED = "dopri5-fused"
+#: The fused loops by name, and the diffrax solver each stands for under reverse mode.
+FUSED_SOLVERS = {FUSED: "dopri5", "dopri8-fused": "dopri8"}
 
 
 def make_solver(name: str):
@@ -61,7 +64,11 @@ def make_solver(name: str):
         return _SOLVERS[name]()
     except KeyError:
         raise ValueError(f"unknown solver '{name}'; choose one of "
-                         f"{sorted(_SOLVERS) + [FUSED]}") from None
+                         f"{sorted(_SOLVERS) + sorted(FUSED_SOLVERS)}") from None
+
+
+def _reverse(adjoint) -> bool:
+    return adjoint is not None and not isinstance(adjoint, dfx.ForwardMode)
 
 
 class IntegrationResult(eqx.Module):
@@ -104,9 +111,12 @@ def integrate(vector_field, y0, args, t0, t1, ts, settings: SolverSettings = Sol
       concrete and not successful. Under jit/vmap (a traced result) nothing is raised:
       inspect `result` yourself.
     """
-    if settings.solver == FUSED:
+    if settings.solver in FUSED_SOLVERS and _reverse(adjoint):
+        settings = dataclasses.replace(settings, solver=FUSED_SOLVERS[settings.solver])
+    if settings.solver in FUSED_SOLVERS:
         ys, result, steps = integrate_fused(vector_field, y0, args, t0, t1, ts, settings.rtol,
-                                            settings.atol, settings.max_steps)
+                                            settings.atol, settings.max_steps,
+                                            FUSED_SOLVERS[settings.solver])
         ts_out = jnp.asarray(ts)
     else:
         ts_out, ys, result, steps = _integrate_diffrax(vector_field, y0, args, t0, t1, ts,
