@@ -21,32 +21,34 @@ CLI = "from bsfs_jax.cli import run; run()"  # what the `bsfs` command runs
 STAT_KEYS = ("wall_s", "compile_s", "run_s", "compiles", "peak_rss_mb")
 
 
-def env(cache=None) -> dict:
-    """The environment of a child process: one BLAS thread (as the CLI sets), this source
-    tree on the path, and the compilation cache `cache` (None: the parent's)."""
+def env(cache=None, root: Path = ROOT) -> dict:
+    """The environment of a child process: one BLAS thread (as the CLI sets), the source
+    tree `root` (default this one) on the path, and the compilation cache `cache` (None:
+    the parent's)."""
     out = dict(os.environ)
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         out.setdefault(var, "1")  # as the CLI does (bsfs_jax/cli/_common.py)
-    out["PYTHONPATH"] = os.pathsep.join([str(ROOT), out.get("PYTHONPATH", "")]).rstrip(
+    out["PYTHONPATH"] = os.pathsep.join([str(root), out.get("PYTHONPATH", "")]).rstrip(
         os.pathsep)
     if cache is not None:
         out["BSFS_CACHE_DIR"] = str(cache)
     return out
 
 
-def run_cli(args, cache, *, check: bool = True):
+def run_cli(args, cache, *, check: bool = True, root: Path = ROOT):
     """`bsfs ARGS` in a fresh process with the compilation cache `cache`: (exit, seconds,
     compile stats: compiles, compile_s, peak_rss_mb from jax's compile events; None where
     the process wrote none). `check`: stop the benchmark unless the exit is 0 or 4 (4:
-    identify ran but did not converge); otherwise print the failure and go on."""
+    identify ran but did not converge); otherwise print the failure and go on. `root`: the
+    source tree that runs (default this one; `bench_ab.py` runs another commit's)."""
     cmd = [sys.executable, "-c", CLI, *args]
     if args[0] == "identify":
         cmd.append("--no-progress")
-    child = env(cache)
+    child = env(cache, root)
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as fh:
         child["BSFS_COMPILE_STATS"] = fh.name
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=child, cwd=ROOT)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=child, cwd=root)
     wall = time.perf_counter() - t0
     stats_file = Path(child["BSFS_COMPILE_STATS"])
     try:

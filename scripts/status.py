@@ -698,6 +698,18 @@ def _cold(src: Sources, v: Values):
     put("cold.predict_before_date", lambda: date10(cmd("predict")["before"]["date"]))
     put("cold.simulate_before_date", lambda: cmd("simulate")["before"]["date"])
     put("cold.sens_before_date", lambda: cmd("sensitivity")["before"]["date"])
+    a = "benchmarks/results/ab.json"  # C2: a change against the code before it
+
+    def ab(name):
+        for c in src.json(a).raw()["commands"]:
+            if c["name"] == name:
+                return c["median"]
+        raise _Absent(f"{a} has no '{name}' command")
+
+    put("ab.date", lambda: date10(src.json(a).raw()["date"]), a)
+    for which in ("head", "base"):
+        for i, kind in enumerate(("cold", "warm")):
+            put(f"ab.map_{which}_{kind}", lambda w=which, k=i: sig(ab("map")[w][k], 3), a)
     r = "benchmarks/results/resonance.json"
 
     def rset(name):

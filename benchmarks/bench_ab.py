@@ -1,0 +1,114 @@
+"""A change against the code before it: commands of `bench_cold.py`, cold and warm, each
+tree in turn (issue 19).
+
+A shared 2-core machine's speed drifts by 10-20 % within hours, so a C1 run (bench_cold.py)
+cannot tell a change's few seconds from the hour it ran in. This script runs the same
+commands from two source trees, alternating them round by round (base first in odd rounds,
+head first in even ones), each run a fresh process with a fresh compilation cache (cold)
+and then with the cache that run filled (warm), and reports both trees' times side by
+side with their medians and the ratio head / base.
+
+    python benchmarks/bench_ab.py --base COMMIT [--only map,continue] [--rounds 2]
+
+The base tree is checked out into a temporary git worktree (removed afterwards). Writes
+benchmarks/results/ab.json and .md (a section of BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from _cli import ROOT, run_cli, write_result  # noqa: E402
+from bench_cold import COMMANDS  # noqa: E402
+
+
+def _git(*args) -> str:
+    return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
+                          text=True).stdout.strip()
+
+
+def _time(args, root, tmp, tag):
+    """(cold s, warm s) of `bsfs ARGS --out ...` from the tree `root`, fresh cache."""
+    cache = tmp / f"cache_{tag}"
+    walls = []
+    for kind in ("cold", "warm"):
+        code, wall, _ = run_cli([*args, "--out", str(tmp / f"{tag}_{kind}")], cache,
+                                root=root)
+        walls.append(wall)
+        print(f"  {tag} {kind}: {wall:.1f} s (exit {code})", flush=True)
+    return walls
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", required=True, help="commit to compare against")
+    ap.add_argument("--only", default="map", help="comma-separated bench_cold.py names "
+                    "(commands with an --out folder and no prepared input; default map)")
+    ap.add_argument("--rounds", type=int, default=2)
+    args = ap.parse_args(argv)
+    table = {name: cmd for name, cmd, _, out in COMMANDS
+             if out is True and not any("{" in a for a in cmd)}
+    names = [n.strip() for n in args.only.split(",")]
+    unknown = [n for n in names if n not in table]
+    if unknown:
+        raise SystemExit(f"bench_ab.py: unknown or unsupported command(s) {unknown}; "
+                         f"choose from {sorted(table)}")
+    base, head = _git("rev-parse", "--short", args.base), _git("rev-parse", "--short",
+                                                                  "HEAD")
+    dirty = bool(_git("status", "--porcelain", "--untracked-files=no"))
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bsfs-ab-") as td:
+        tmp = Path(td)
+        tree = tmp / "base"
+        _git("worktree", "add", "--detach", str(tree), base)
+        try:
+            for name in names:
+                times = {"base": [], "head": []}
+                for k in range(args.rounds):
+                    order = ("base", "head") if k % 2 == 0 else ("head", "base")
+                    for which in order:
+                        root = tree if which == "base" else ROOT
+                        print(f"{name} round {k + 1} {which}", flush=True)
+                        times[which].append(_time(table[name], root, tmp,
+                                                  f"{name}_{which}{k}"))
+                med = {w: [statistics.median(t[i] for t in times[w]) for i in (0, 1)]
+                       for w in times}
+                rows.append(dict(name=name, command="bsfs " + " ".join(table[name]),
+                                 base=times["base"], head=times["head"], median=med))
+        finally:
+            _git("worktree", "remove", "--force", str(tree))
+    date = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
+    result = dict(date=date, base=base, head=head + ("+" if dirty else ""),
+                  rounds=args.rounds, commands=rows)
+    md = ["## C2: a change against the code before it, run alternately (issue 19)", "",
+          f"Machine: 2-core CPU; {date} UTC. `python benchmarks/bench_ab.py --base {base} "
+          f"--only {args.only} --rounds {args.rounds}`: base {base}, head {result['head']}; "
+          "each run a fresh process, cold (empty cache) then warm (the cache it filled); "
+          "the trees alternate round by round. Seconds of every run, medians, and head / "
+          "base.", "",
+          "| command | base cold [s] | head cold [s] | head / base | base warm [s] | "
+          "head warm [s] | head / base |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        b, h = r["median"]["base"], r["median"]["head"]
+        md.append(
+            f"| `{r['command']}` | {', '.join(f'{t[0]:.1f}' for t in r['base'])} "
+            f"(median {b[0]:.1f}) | {', '.join(f'{t[0]:.1f}' for t in r['head'])} "
+            f"(median {h[0]:.1f}) | {h[0] / b[0]:.2f} | "
+            f"{', '.join(f'{t[1]:.1f}' for t in r['base'])} (median {b[1]:.1f}) | "
+            f"{', '.join(f'{t[1]:.1f}' for t in r['head'])} (median {h[1]:.1f}) | "
+            f"{h[1] / b[1]:.2f} |")
+    write_result("ab", result, "\n".join(md) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
