@@ -72,12 +72,12 @@ def _median(xs):
 
 
 def cold_warm_runs(args, repeats, tmp, tag, *, out: str | None = "dir",
-                   check: bool = True):
+                   check: bool = True, root: Path = ROOT):
     """Each repeat: `bsfs ARGS` with an empty compilation cache (cold), then again with the
     cache that run filled (warm). `out`: what `--out` names ("dir": a folder, ".csv" or
     another suffix: a file, None: no --out). Medians of wall, compile and run (= wall -
     compile) seconds, the compilations and peak memory, each kind's wall times and last
-    exit code; and the last cold run's output path."""
+    exit code; and the last cold run's output path. `root`: the source tree that runs."""
     rows = []
     for k in range(repeats):
         cache = tmp / f"cache_{tag}{k}"
@@ -86,7 +86,7 @@ def cold_warm_runs(args, repeats, tmp, tag, *, out: str | None = "dir",
             path = None if out is None else tmp / (f"{tag}{k}_{kind}"
                                                    + ("" if out == "dir" else out))
             code, wall, st = run_cli([*args] + ([] if path is None else ["--out", str(path)]),
-                                     cache, check=check)
+                                     cache, check=check, root=root)
             comp = st["compile_s"]
             row[kind] = dict(wall_s=wall, compile_s=comp,
                              run_s=None if comp is None else wall - comp,

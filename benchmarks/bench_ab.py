@@ -27,25 +27,13 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _cli import ROOT, run_cli, write_result  # noqa: E402
+from _cli import ROOT, cold_warm_runs, write_result  # noqa: E402
 from bench_cold import COMMANDS  # noqa: E402
 
 
 def _git(*args) -> str:
     return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
                           text=True).stdout.strip()
-
-
-def _time(args, root, tmp, tag):
-    """(cold s, warm s) of `bsfs ARGS --out ...` from the tree `root`, fresh cache."""
-    cache = tmp / f"cache_{tag}"
-    walls = []
-    for kind in ("cold", "warm"):
-        code, wall, _ = run_cli([*args, "--out", str(tmp / f"{tag}_{kind}")], cache,
-                                root=root)
-        walls.append(wall)
-        print(f"  {tag} {kind}: {wall:.1f} s (exit {code})", flush=True)
-    return walls
 
 
 def main(argv=None) -> int:
@@ -78,9 +66,11 @@ def main(argv=None) -> int:
                     for which in order:
                         root = tree if which == "base" else ROOT
                         print(f"{name} round {k + 1} {which}", flush=True)
-                        times[which].append(_time(table[name], root, tmp,
-                                                  f"{name}_{which}{k}"))
-                med = {w: [statistics.median(t[i] for t in times[w]) for i in (0, 1)]
+                        med, _ = cold_warm_runs(table[name], 1, tmp, f"{name}_{which}{k}",
+                                                root=root)
+                        times[which].append([med[kind][key] for kind in ("cold", "warm")
+                                             for key in ("wall_s", "compiles")])
+                med = {w: [statistics.median(t[i] for t in times[w]) for i in (0, 2)]
                        for w in times}
                 rows.append(dict(name=name, command="bsfs " + " ".join(table[name]),
                                  base=times["base"], head=times["head"], median=med))
@@ -93,19 +83,26 @@ def main(argv=None) -> int:
           f"Machine: 2-core CPU; {date} UTC. `python benchmarks/bench_ab.py --base {base} "
           f"--only {args.only} --rounds {args.rounds}`: base {base}, head {result['head']}; "
           "each run a fresh process, cold (empty cache) then warm (the cache it filled); "
-          "the trees alternate round by round. Seconds of every run, medians, and head / "
-          "base.", "",
+          "the trees alternate round by round. Seconds of every run, medians, head / base, "
+          "and each run's compiled programs (jax's compile events).", "",
           "| command | base cold [s] | head cold [s] | head / base | base warm [s] | "
-          "head warm [s] | head / base |", "|---|---|---|---|---|---|---|"]
+          "head warm [s] | head / base | programs cold / warm, base | head |",
+          "|---|---|---|---|---|---|---|---|---|"]
+
+    def runs(ts, i):
+        return ", ".join(f"{t[i]:.1f}" for t in ts)
+
+    def programs(ts):
+        return "; ".join(f"{t[1]:.0f} / {t[3]:.0f}" for t in ts)
+
     for r in rows:
         b, h = r["median"]["base"], r["median"]["head"]
         md.append(
-            f"| `{r['command']}` | {', '.join(f'{t[0]:.1f}' for t in r['base'])} "
-            f"(median {b[0]:.1f}) | {', '.join(f'{t[0]:.1f}' for t in r['head'])} "
-            f"(median {h[0]:.1f}) | {h[0] / b[0]:.2f} | "
-            f"{', '.join(f'{t[1]:.1f}' for t in r['base'])} (median {b[1]:.1f}) | "
-            f"{', '.join(f'{t[1]:.1f}' for t in r['head'])} (median {h[1]:.1f}) | "
-            f"{h[1] / b[1]:.2f} |")
+            f"| `{r['command']}` | {runs(r['base'], 0)} (median {b[0]:.1f}) | "
+            f"{runs(r['head'], 0)} (median {h[0]:.1f}) | {h[0] / b[0]:.2f} | "
+            f"{runs(r['base'], 2)} (median {b[1]:.1f}) | {runs(r['head'], 2)} "
+            f"(median {h[1]:.1f}) | {h[1] / b[1]:.2f} | {programs(r['base'])} | "
+            f"{programs(r['head'])} |")
     write_result("ab", result, "\n".join(md) + "\n")
     return 0
 

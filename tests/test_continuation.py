@@ -389,6 +389,7 @@ def test_bifurcations_without_the_peaks(duffing_frc):
                              vector_field=duffing, scale=jnp.ones(2), normalise=False,
                              p_scale=1.0, amplitude_index=0, find_peaks=False)
     assert duffing_frc.peaks and not branch.peaks
+    assert duffing_frc.info["peaks_searched"] and not branch.info["peaks_searched"]
     np.testing.assert_allclose(branch.p, duffing_frc.p, rtol=1e-12)
     folds = [b.p for b in branch.bifurcations if b.kind == "fold" and b.located]
     assert len(folds) == 2

@@ -186,7 +186,7 @@ def run(args) -> int:
     from ..analysis import SweepConfig, VerifySettings, atlas, bsfs_problem
     from ..params import validate
     from ..plotting import plot_atlas_amplitude, plot_atlas_motion
-    from ..solvers import SolverSettings
+    from ..solvers import FUSED_SHOOTING_SETTINGS, Shooting, SolverSettings
 
     _check(args)
     params = ui.load_params_from_args(args)
@@ -220,11 +220,14 @@ def run(args) -> int:
                      args.frequency])
     notes = []
     pending = None
+    # The rows' shooting by the fused 8(7) loop: its program compiles ~7 s longer than
+    # diffrax's, but each of a row's ~200 corrector calls takes half the time.
+    shooting = Shooting(settings=FUSED_SHOOTING_SETTINGS)
 
     def row_bifurcations(y):
         from .._programs import settle
         from ..machine import bsfs_family, simulate
-        from ..solvers import FUSED_SHOOTING_SETTINGS, HarmonicBalance, Shooting, continue_orbits
+        from ..solvers import HarmonicBalance, continue_orbits
         from ._continue_cmd import continue_by_method
 
         p, _, force = row(y)
@@ -239,8 +242,6 @@ def run(args) -> int:
             guess = traj.host_state()[:spp]
             family = bsfs_family(p, force)
             settle(pending)
-            # Shooting by the fused 8(7) loop: its program compiles ~7 s longer than
-            # diffrax's, but each of a row's ~200 corrector calls takes half the time.
             branch, why = continue_by_method(
                 lambda method: continue_orbits(family, guess, lo, hi, method=method,
                                                ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
@@ -249,7 +250,7 @@ def run(args) -> int:
                                                find_peaks=False),
                 args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol,
                                              second_order=True),
-                Shooting(settings=FUSED_SHOOTING_SETTINGS), args.hb_tol)
+                shooting, args.hb_tol)
             for w in why:
                 notes.append(f"{args.y} = {y:g}: {w}")
         except Exception as exc:  # noqa: BLE001 - a row without curves is reported
@@ -292,13 +293,13 @@ def run(args) -> int:
         # compiled 7-14 s): start it first, on the background thread, from the first
         # row's family (its layout needs only the state's size, six).
         from ..machine import bsfs_family
-        from ..solvers import FUSED_SHOOTING_SETTINGS, Shooting, prefetch_corrector
+        from ..solvers import prefetch_corrector
 
         p0, _, force0 = row(ys[0])
         family0 = bsfs_family(p0, force0)
         pending = prefetch_corrector(
-            family0, family0.vector_field, Shooting(settings=FUSED_SHOOTING_SETTINGS),
-            np.zeros(6), x[0] if args.band is None else args.band[0], amplitude_index=2)
+            family0, family0.vector_field, shooting, np.zeros(6),
+            x[0] if args.band is None else args.band[0], amplitude_index=2)
     try:
         result = atlas(
             row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,

@@ -167,7 +167,8 @@ class Branch:
     @property
     def peak(self) -> Peak | None:
         """The largest located amplitude maximum inside the branch, or None when the
-        amplitude has no interior maximum (it is largest at an end of the interval)."""
+        amplitude has no interior maximum (it is largest at an end of the interval) or
+        when the continuation did not look for one (`info["peaks_searched"]` False)."""
         if not self.peaks:
             return None
         return max(self.peaks, key=lambda pk: pk.amplitude)

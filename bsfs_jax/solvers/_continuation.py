@@ -78,7 +78,9 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     - `amplitude_index`: the coordinate whose half peak-to-peak is `Branch.amplitude`.
     - `locate`: locate events by regula falsi (`locate_iters` corrector calls each).
     - `find_peaks`: also find the amplitude's maxima along the branch (`Branch.peaks`; False
-      skips their location, e.g. where only the bifurcations are wanted).
+      skips their location, e.g. where only the bifurcations are wanted, and
+      `info["peaks_searched"]` says so: `Branch.peak` is then None without meaning that
+      the amplitude has no interior maximum).
     - `progress`: True for a tqdm bar, or a callable(n_points, p).
 
     **Returns:** a `Branch`; raises `SolverError` if the first orbit cannot be found.
@@ -248,7 +250,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
             "corrector_traces": TRACE_COUNTS["corrector"] - traces_before,
             "p_scale": p_scale, "scale": np.asarray(kernel.scale).tolist(),
             "method": kernel.method.name, "harmonic_upgrades": upgrades,
-            "harmonic_downgrades": downgrades,
+            "harmonic_downgrades": downgrades, "peaks_searched": bool(find_peaks),
             **kernel.method.discretisation()}
     return points_to_branch(points, arclength, bifurcations, peaks, kernel, n_periods, info)
 

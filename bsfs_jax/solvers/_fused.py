@@ -25,6 +25,8 @@ is called thousands of times (`bsfs map`'s row continuations), not where a few c
 follow a cold compilation.
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -61,14 +63,13 @@ def _dopri8_tableau():
     return a, c, b, e
 
 
-#: Per method: (A, C, B, E, controller exponent, steps held out of derivatives).
-METHODS = {"dopri5": (_A, _C, _B5, _E, 0.2, False)}
-
-
-def _method(name):
-    if name not in METHODS:
-        METHODS[name] = (*_dopri8_tableau(), 1 / 8, True)
-    return METHODS[name]
+@functools.cache
+def _method(name: str):
+    """(A, C, B, E, controller exponent, steps held out of derivatives) of "dopri5" or
+    "dopri8"."""
+    if name == "dopri5":
+        return _A, _C, _B5, _E, 0.2, False
+    return (*_dopri8_tableau(), 1 / 8, True)
 
 
 def _rms(x):

@@ -13,13 +13,15 @@ unstable orbit whose single-period map amplifies errors) or stiff. The Newton ma
 the segment Jacobians Phi_i' on its block diagonal; the monodromy matrix is their product.
 """
 
+import dataclasses
+
 import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._integrate import SolverSettings, integrate
+from ._integrate import FUSED_SOLVERS, SolverSettings, integrate
 from ._method import AbstractOrbitMethod
 from ._newton import residual_and_jacobian
 
@@ -33,10 +35,6 @@ SHOOTING_SETTINGS = SolverSettings(rtol=1e-11, atol=1e-13, solver="dopri8")
 #: per period map, four times the compilation; for runs of thousands of corrector calls
 #: (under a reverse-mode adjoint `integrate` runs diffrax's Dopri8 instead).
 FUSED_SHOOTING_SETTINGS = SolverSettings(rtol=1e-11, atol=1e-13, solver="dopri8-fused")
-#: The orbit's samples (its amplitudes) by diffrax's Dopri8 where shooting runs the fused
-#: loop: diffrax interpolates the 128 sample times, the fused loop would clip its steps
-#: onto them, and diffrax's program compiles in a quarter of the time.
-_SAMPLING = {"dopri8-fused": SHOOTING_SETTINGS}
 
 
 def default_scale(y_guess):
@@ -194,7 +192,11 @@ class Shooting(AbstractOrbitMethod):
         t = self._times(period, n_periods)
         zs = z.reshape(self.segments, d)
 
-        settings = _SAMPLING.get(self.settings.solver, self.settings)
+        # A fused loop's samples (the orbit's amplitudes) by its diffrax counterpart, same
+        # tolerances: diffrax interpolates the sample times where the fused loop would
+        # clip its steps onto them, and its program compiles in a quarter of the time.
+        settings = dataclasses.replace(self.settings, solver=FUSED_SOLVERS.get(
+            self.settings.solver, self.settings.solver))
 
         def seg(z_i, t0, t1):
             ts = t0 + (t1 - t0) * jnp.arange(k_seg) / k_seg
