@@ -13,7 +13,8 @@ Public API (the package uses only the public API of `bsfs_jax`):
 - fitting: `FIT_PARAMETERS`, `DEFAULT_FIT`, `PRELOAD_FIT`, `MODEL_ERROR`, `parse_fit`,
   `parse_priors`, `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
 - uncertainty: `uncertainty`, `Uncertainty`, `profile_intervals`, `posterior` (NUTS),
-  `Posterior`, `posterior_text`;
+  `Posterior`, `posterior_text`, `refit` (randomised-maximum-likelihood refits), `Refits`,
+  `REFITS`, `save_refits`;
 - reports: `report_dict`, `parameter_rows`, `summary_text`, `preload_verdicts`,
   `write_identified`;
 - test planning: `plan_test`, `candidate_plans`;
@@ -62,6 +63,10 @@ from ._problem import Problem as Problem
 from ._profile import profile_intervals as profile_intervals
 from ._records import Record as Record
 from ._records import RecordError as RecordError
+from ._refits import REFITS as REFITS
+from ._refits import Refits as Refits
+from ._refits import refit as refit
+from ._refits import save_refits as save_refits
 from ._report import DATA_DIR as DATA_DIR
 from ._report import IdentificationResult as IdentificationResult
 from ._report import bundled_records as bundled_records

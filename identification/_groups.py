@@ -80,6 +80,9 @@ class FitData(eqx.Module):
     speeds: jax.Array  # (G,) [r/min]
     prior_values: jax.Array  # (p,) file units
     inv_sigma: jax.Array  # (p,) 1 / prior std of theta; 0: no prior
+    # (p,) the prior's centre in theta (zero; a randomised-maximum-likelihood refit draws it
+    # from the prior, `_refits.py`)
+    prior_shift: jax.Array
     info_floor: jax.Array  # () singular values below this carry no information (ML: 1)
     groups: tuple
     # () bool: the periodic-orbit records are modelled (False: a staged fit's first stage,
@@ -203,7 +206,8 @@ def build_data(problem, is_frf):
     fit_data = FitData(
         problem.base, np.asarray(problem.speeds, float), np.asarray(problem.prior_values),
         np.asarray(np.zeros(problem.n_params) if sigma is None else 1.0 / np.asarray(sigma)),
-        np.asarray(problem.info_floor, float), tuple(groups), np.asarray(True))
+        np.zeros(problem.n_params), np.asarray(problem.info_floor, float), tuple(groups),
+        np.asarray(True))
     structure = Structure(tuple(problem.keys),
                           tuple(-1 if s is None else problem.speeds.index(s)
                                 for s in problem.param_speeds),

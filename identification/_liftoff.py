@@ -212,7 +212,7 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
                                                  hess[first]), ident,
         method="delta (nonlinear orbit at the FRC peak)",
         quadratic="quadratic (nonlinear orbit; Hessian carried from the linearised joints)",
-        extra=dict(
+        approximate=True, extra=dict(
             frequency_hz=float(hint.frequency_hz), linearised_n=lin.value, gradient=how,
             note="the force at which the first joint to open loses contact on the periodic "
                  "orbit at the FRC peak (harmonic balance); its second-order check uses "

@@ -95,7 +95,8 @@ def predict(theta, data: FitData, structure: Structure, orbits: bool = True):
 
 def residual(theta, data: FitData, structure: Structure):
     """Noise-weighted data residual (about N(0, 1) at the truth), then the prior's entries
-    theta / sigma (zero where a parameter has no prior)."""
+    (theta - shift) / sigma (zero where a parameter has no prior; the shift is zero but in a
+    randomised-maximum-likelihood refit)."""
     parts = []
     for (sine, frf), g in zip(predict(theta, data, structure), data.groups):
         for model, meas, scale in ((sine, g.sine_acc, g.sine_scale),
@@ -104,7 +105,7 @@ def residual(theta, data: FitData, structure: Structure):
             d = jnp.where(jnp.isfinite(d), d, BAD_RESIDUAL)
             parts.append((jnp.real(d) / scale[..., 0]).reshape(-1))
             parts.append((jnp.imag(d) / scale[..., 1]).reshape(-1))
-    parts.append(theta * data.inv_sigma)
+    parts.append((theta - data.prior_shift) * data.inv_sigma)
     return jnp.concatenate(parts)
 
 

@@ -2,7 +2,9 @@
 data-domain bootstrap refits, against the exact refits.
 
 The bundled preload-loss test is identified (PRELOAD_FIT); its fit data get Gaussian
-noise at their stated standard errors, and N refits from the estimate run as one batched
+noise at their stated standard errors and the prior's centre a draw from the prior (the
+randomised-maximum-likelihood refits `bsfs identify --refits` saves,
+`identification._refits.perturbed`), and N refits from the estimate run as one batched
 optimistix solve (`identification._solve.solve`). For the first natural frequency, the
 damping ratio and the static stiffness (exact value, gradient and Hessian in the fitted
 coordinates) it prints, in the delta method's standard deviations:
@@ -19,7 +21,6 @@ coordinates) it prints, in the delta method's standard deviations:
 import sys
 import time
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,23 +30,10 @@ jax.config.update("jax_enable_x64", True)
 import identification as idn  # noqa: E402
 from identification._forecast import identified_from_result  # noqa: E402
 from identification._forecast_run import _modal_program  # noqa: E402
+from identification._refits import perturbed  # noqa: E402
 from identification._solve import solve  # noqa: E402
 
 NAMES = ("natural_frequency_1_hz", "damping_ratio_1", "static_stiffness")
-
-
-def perturbed(data, rng):
-    """The fit data with Gaussian noise at each line's stated standard error."""
-    groups = []
-    for g in data.groups:
-        s, acc = np.asarray(g.sine_scale), np.asarray(g.sine_acc)
-        n = np.where(np.isfinite(s), s, 0.0) * rng.standard_normal(s.shape)
-        fs, fa = np.asarray(g.frf_scale), np.asarray(g.frf_acc)
-        nf = np.where(np.isfinite(fs), fs, 0.0) * rng.standard_normal(fs.shape)
-        groups.append(eqx.tree_at(lambda g: (g.sine_acc, g.frf_acc), g,
-                                  (acc + n[..., 0] + 1j * n[..., 1],
-                                   fa + nf[..., 0] + 1j * nf[..., 1])))
-    return eqx.tree_at(lambda d: d.groups, data, tuple(groups))
 
 
 def main(n: int) -> None:

@@ -15,6 +15,12 @@ run on the truth (worn.toml) itself, the preloads read from it.
     python scripts/forecast_coverage.py --report-only   # tables from the files
     python scripts/forecast_coverage.py --part liftoff  # the lift-off alone (~15 s each)
     python scripts/forecast_coverage.py --part modal    # modal quantities, preloads (~5 s)
+    python scripts/forecast_coverage.py --first 200 --replicates 300   # seeds 200-299
+
+Each folder holds the 200 bootstrap refits `bsfs identify --refits auto` saves for these
+records (`identification.refit`, about 2 s), which the forecast's quadratic model uses
+where its delta method is doubtful; BSFS_COVERAGE_NO_REFITS=1 leaves them out (the
+forecast then draws from the covariance, as before 2026-11-28).
 
 `--part liftoff` runs the same replicates (same seeds, so the same identification) through
 the lift-off alone (`identification.forecast_liftoff`, the computation `forecast` does on
@@ -70,11 +76,17 @@ PRELOADS = {"nut_preload_n": "nut.preload_n", "bearing_preload_n": "bearing.prel
 
 
 def identified_folder(records, prior, folder: Path):
-    """`bsfs identify --fit PRELOAD_FIT --out folder` on the records (its two files)."""
+    """`bsfs identify --fit PRELOAD_FIT --out folder` on the records (identified.toml,
+    report.json and, as `--refits auto` does for these records, refits.npz)."""
     res = idn.identify(records, prior, idn.PRELOAD_FIT)
     folder.mkdir(parents=True, exist_ok=True)
     idn.write_identified(res, folder)
-    write_json(folder / "report.json", idn.report_dict(res))
+    report = idn.report_dict(res)
+    if res.fit.converged and not os.environ.get("BSFS_COVERAGE_NO_REFITS"):
+        refits = idn.refit(res, idn.REFITS)
+        report["refits"] = refits.as_dict()
+        idn.save_refits(refits, folder, res.fit.values)
+    write_json(folder / "report.json", report)
     return res
 
 
@@ -178,7 +190,8 @@ def markdown(s: dict, force: float) -> str:
         if not q.get("judged"):
             continue
         lo, hi = q["coverage_ci95"]
-        zm = "-" if q["z_mean"] is None else f"{q['z_mean']:+.2f} +- {q['z_mean_se']:.2f}"
+        zm = ("-" if q["z_mean"] is None else f"{q['z_mean']:+.2f}" if q["z_mean_se"] is None
+              else f"{q['z_mean']:+.2f} +- {q['z_mean_se']:.2f}")
         zs = "-" if q["z_std"] is None else f"{q['z_std']:.2f}"
         rel = "-" if q["rel_error_mean"] is None else f"{100 * q['rel_error_mean']:+.3f} %"
         zp = ("-" if not q.get("z_plug_in_n") else
@@ -270,6 +283,8 @@ def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--replicates", type=int, default=100)
+    ap.add_argument("--first", type=int, default=0,
+                    help="first replicate (seeds first..replicates-1; default 0)")
     ap.add_argument("--quick", action="store_true", help="4 replicates (a check)")
     ap.add_argument("--force", type=float, default=100.0, help="working force [N]")
     ap.add_argument("--workers", type=int, default=1,
@@ -286,7 +301,7 @@ def main(argv=None) -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     rows = [r for f in files(args.force, part) for r in read_done(f)]
     done = {r["replicate"] for r in rows}
-    todo = [k for k in range(n) if k not in done]
+    todo = [k for k in range(args.first, n) if k not in done]
     if args.shard:
         i, m = (int(x) for x in args.shard.split("/"))
         run(todo[i::m][:PER_PROCESS], row_path(args.force, part, i), args.force, part)
@@ -303,9 +318,10 @@ def main(argv=None) -> int:
         # forecasts beside another ran out of the machine's 24 GB.
         while True:
             done = {r["replicate"] for f in files(args.force, part) for r in read_done(f)}
-            if all(k in done for k in range(n)):
+            if all(k in done for k in range(args.first, n)):
                 break
             procs = [subprocess.Popen([sys.executable, __file__, "--replicates", str(n),
+                                       "--first", str(args.first),
                                        "--force", str(args.force), "--part", part, "--shard",
                                        f"{i}/{args.workers}"]) for i in range(args.workers)]
             if any(p.wait() for p in procs):
@@ -314,7 +330,7 @@ def main(argv=None) -> int:
 
     def read(which):
         return sorted({r["replicate"]: r for f in files(args.force, which)
-                       for r in read_done(f) if r["replicate"] < n}.values(),
+                       for r in read_done(f) if args.first <= r["replicate"] < n}.values(),
                       key=lambda r: r["replicate"])
 
     rows = overlay(overlay(read("all"), read("liftoff")), read("modal"), "modal_pass")

@@ -55,6 +55,12 @@ def register(sub) -> None:
                    "after as many warm-up steps, 4 chains; report.json's 'posterior' with "
                    "R-hat and effective sample sizes (needs priors and no periodic-orbit records; "
                    "0: off)")
+    p.add_argument("--refits", type=_refits_count, default="auto", metavar="N|auto",
+                   help="randomised-maximum-likelihood refits saved for `bsfs predict` "
+                   "(refits.npz: data and prior perturbed at their stated errors, refitted "
+                   "from the estimate; the forecast's draws where its delta method is "
+                   "doubtful). auto: 200 where no record needs the periodic-orbit model "
+                   "(about 2 s), else none (each refit then costs about 0.1 s); 0: none")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -76,6 +82,12 @@ def register(sub) -> None:
                    "periodic-orbit model)")
     t.add_argument("--out", required=True, metavar="DIR")
     t.set_defaults(func=run_plan)
+
+
+def _refits_count(text: str):
+    if text.strip().lower() == "auto":
+        return "auto"
+    return ui.count(0, 100_000)(text)
 
 
 def _fit_names(text):
@@ -131,16 +143,24 @@ def run_identify(args) -> int:
     if post is not None:
         report["posterior"] = post.as_dict()
         report["summary"] += "\n" + idn.posterior_text(report["posterior"], report)
+    refits = _refits(res, args)
+    if refits is not None:
+        report["refits"] = refits.as_dict()
+        report["summary"] += "\n" + _refits_line(refits)
     paths = idn.write_identified(res, out)
     ui.write_json(out / "report.json", report)
     written = [*paths, out / "report.json"]
-    if post is not None:  # the draws themselves, for `bsfs predict`
-        import numpy as np
+    import numpy as np
 
-        from ..files import save_npz_atomic
+    from ..files import save_npz_atomic
 
+    # The draws themselves, for `bsfs predict`, each with the estimate they belong to.
+    estimate = np.asarray(res.fit.values, float)
+    if post is not None:
         written.append(save_npz_atomic(out / "posterior.npz", names=np.asarray(post.names),
-                                       samples=post.samples))
+                                       samples=post.samples, estimate=estimate))
+    if refits is not None:
+        written.append(idn.save_refits(refits, out, estimate))
     from ..plotting import correlation_figure, fit_figure
 
     sines = [(d, m, c) for d, m, c in zip(res.data, res.model_labels(), res.model_harmonics())
@@ -173,6 +193,32 @@ def run_identify(args) -> int:
     print(report["summary"])
     print(f"\nwrote {', '.join(str(p) for p in written)} ({time.perf_counter() - t0:.1f} s)")
     return 0 if res.fit.converged else 4
+
+
+def _refits(res, args):
+    """The refits `--refits` asks for (auto: `REFITS` where no record is on the
+    periodic-orbit model); None for none, or where the fit did not converge (`bsfs predict`
+    refuses it)."""
+    import identification as idn
+
+    n = args.refits
+    if n == "auto":
+        n = 0 if any(m == "nonlinear" for m in res.problem.models) else idn.REFITS
+    if n == 0 or not res.fit.converged:
+        return None
+    from tqdm.auto import tqdm
+
+    with tqdm(total=n, desc="refits", unit="fit", disable=not ui.progress_enabled(args)) as bar:
+        return idn.refit(res, n, seed=args.seed,
+                         on_batch=lambda done, _n: bar.update(done - bar.n))
+
+
+def _refits_line(refits) -> str:
+    use = ("saved for `bsfs predict` (refits.npz)" if refits.usable else
+           f"fewer than {refits.as_dict()['min_converged']:.0%} converged: not used by "
+           "`bsfs predict`")
+    return (f"Bootstrap refits: {refits.converged} of {refits.requested} converged "
+            f"({refits.seconds:.1f} s), {use}.")
 
 
 def _posterior(res, args):

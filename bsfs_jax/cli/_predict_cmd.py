@@ -10,8 +10,9 @@ def register(sub) -> None:
         description="Read a `bsfs identify --out` folder and carry the fit's covariance "
         "through the model: first natural frequency, damping ratio and static stiffness; "
         "the FRC's peak and folds at --force (continued branch, exact implicit gradients, "
-        "delta method checked at second order; where it is doubtful, the posterior draws "
-        "of `bsfs identify --posterior` when the folder has them); the lift-off force "
+        "delta method checked at second order; where it is doubtful, the quadratic model over "
+        "the posterior draws of `bsfs identify --posterior` or the bootstrap refits of "
+        "`bsfs identify --refits` when the folder has them); the lift-off force "
         "(on the nonlinear orbit at the FRC peak); "
         "preloads retained against the nominal drive; a health verdict per joint. Writes "
         "prediction.json and prediction.png.")
@@ -53,12 +54,15 @@ def run_predict(args) -> int:
         fitted=list(ident.names), quantities=quantities,
         per_joint_liftoff=[q.as_dict() for q in fc["per_joint_liftoff"]],
         health=fc["health"],
-        posterior_draws=ident.draws_note,
+        draws=ident.draws_note,
         note="95 % intervals from the identification's covariance: delta method through "
-             "exact implicit gradients, checked at the ends of each quantity's most "
-             "sensitive path ('path ends' where the second-order term exceeds 10 % of the "
-             "half-width); dominated_by names the fitted parameter whose own variance "
-             "contributes most")
+             "exact implicit gradients, checked at second order (exact Hessian; for the FRC "
+             "quantities, probes along the covariance's least determined directions). Where "
+             "the second-order std exceeds 10 % of the linear one, the 2.5-97.5 % range of "
+             "the quadratic model over draws: the posterior draws, else the bootstrap "
+             "refits, else Gaussian draws from the covariance ('draws' says which were "
+             "saved; each quantity's method says which was used). dominated_by names the "
+             "fitted parameter whose own variance contributes most")
     out = ui.out_dir(args.out)
     ui.write_json(out / "prediction.json", data)
     fig = forecast_figure(fc["curves"], fc["nominal_branch"], by_name, fc["force_n"])
