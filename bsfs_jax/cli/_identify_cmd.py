@@ -59,8 +59,8 @@ def register(sub) -> None:
                    help="randomised-maximum-likelihood refits saved for `bsfs predict` "
                    "(refits.npz: data and prior perturbed at their stated errors, refitted "
                    "from the estimate; the forecast's draws where its delta method is "
-                   "doubtful). auto: 200 where no record needs the periodic-orbit model "
-                   "(about 2 s), else none (each refit then costs about 0.1 s); 0: none")
+                   "doubtful). auto: 200 where at most 5 parameters are fitted and no record "
+                   "needs the periodic-orbit model (about 2 s), else none; 0: none")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -196,14 +196,13 @@ def run_identify(args) -> int:
 
 
 def _refits(res, args):
-    """The refits `--refits` asks for (auto: `REFITS` where no record is on the
-    periodic-orbit model); None for none, or where the fit did not converge (`bsfs predict`
-    refuses it)."""
+    """The refits `--refits` asks for (auto: `identification.refits_by_default`); None for
+    none, or where the fit did not converge (`bsfs predict` refuses it)."""
     import identification as idn
 
     n = args.refits
     if n == "auto":
-        n = 0 if any(m == "nonlinear" for m in res.problem.models) else idn.REFITS
+        n = idn.REFITS if idn.refits_by_default(res) else 0
     if n == 0 or not res.fit.converged:
         return None
     from tqdm.auto import tqdm
