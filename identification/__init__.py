@@ -14,7 +14,7 @@ Public API (the package uses only the public API of `bsfs_jax`):
   `parse_priors`, `Problem`, `fit`, `identify`, `IdentificationResult`, `measurement_data`;
 - uncertainty: `uncertainty`, `Uncertainty`, `profile_intervals`, `posterior` (NUTS),
   `Posterior`, `posterior_text`, `refit` (randomised-maximum-likelihood refits), `Refits`,
-  `REFITS`, `save_refits`, `refits_by_default`;
+  `REFITS`, `save_refits`, `refits_by_default`, `refits_for`;
 - reports: `report_dict`, `parameter_rows`, `summary_text`, `preload_verdicts`,
   `write_identified`;
 - test planning: `plan_test`, `candidate_plans`;
@@ -67,6 +67,7 @@ from ._refits import REFITS as REFITS
 from ._refits import Refits as Refits
 from ._refits import refit as refit
 from ._refits import refits_by_default as refits_by_default
+from ._refits import refits_for as refits_for
 from ._refits import save_refits as save_refits
 from ._report import DATA_DIR as DATA_DIR
 from ._report import IdentificationResult as IdentificationResult

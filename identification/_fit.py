@@ -121,6 +121,17 @@ def no_information_std(problem: Problem):
     return NO_INFORMATION_STD if problem.prior_sigma is None else None
 
 
+def solved_lanes(problem: Problem, out):
+    """Per lane of `solve`'s output `out`: its residual and Jacobian (the rows `Problem.rj`
+    returns) and the remaining Gauss-Newton step there, in standard errors (the fit's
+    convergence test, `STEP_TOL`)."""
+    keep = problem._residual_rows(out["residual"].shape[1])
+    rows, max_std = full_used_mask(problem), no_information_std(problem)
+    for r, j in zip(out["residual"], out["jacobian"]):
+        r, j = r[keep], j[keep]
+        yield r, j, remaining_step(r, j, rows, max_std)
+
+
 def full_used_mask(problem: Problem) -> np.ndarray:
     """Rows of the full residual that carry information (data used + prior rows)."""
     used = problem.used_mask()
@@ -332,7 +343,6 @@ def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> 
     """Fit from `points`; `weights`: the quasi-random starts each point stands for (a staged
     fit's basin counts; 1 each by default)."""
     t0 = time.perf_counter()
-    rows = full_used_mask(problem)
     datas, settled = problem.fit_data, None
     if problem.structure.sweeps:
         # Swept records: each lane's sweep computed at its start, then again at its result
@@ -342,12 +352,8 @@ def _fit_from(problem: Problem, points, options: SolveOptions, weights=None) -> 
     if problem.structure.sweeps:
         settled = settle(out, datas, problem.structure,
                          lambda th, ds: solve(th, True, ds, problem.structure, options))
-    keep = problem._residual_rows(out["residual"].shape[1])
-    max_std = no_information_std(problem)
     runs = []
-    for k, th0 in enumerate(points):
-        r, j = out["residual"][k][keep], out["jacobian"][k][keep]
-        step = remaining_step(r, j, rows, max_std)
+    for k, (th0, (r, j, step)) in enumerate(zip(points, solved_lanes(problem, out))):
         runs.append(dict(start=problem.values(np.asarray(th0)).tolist(),
                          theta=out["theta"][k], residual=r, jacobian=j, step=step,
                          cost=float(out["cost"][k]), steps=int(out["steps"][k]),

@@ -29,7 +29,7 @@ import time
 import equinox as eqx
 import numpy as np
 
-from ._fit import STEP_TOL, full_used_mask, no_information_std, remaining_step
+from ._fit import STEP_TOL, solved_lanes
 from ._solve import SolveOptions, solve
 
 REFITS = 200  # default number of refits (`bsfs identify --refits`)
@@ -77,6 +77,17 @@ def refits_by_default(result) -> bool:
             and not any(m == "nonlinear" for m in problem.models))
 
 
+def refits_for(result, n="auto", seed: int = 0, on_batch=None) -> Refits | None:
+    """What `bsfs identify --refits N|auto` saves: `refit(result, n)`, with "auto" read as
+    `REFITS` where `refits_by_default`, else none; None where that is none or the fit did
+    not converge (`bsfs predict` refuses an unconverged fit)."""
+    if n == "auto":
+        n = REFITS if refits_by_default(result) else 0
+    if n == 0 or not getattr(result, "fit", result).converged:
+        return None
+    return refit(result, n, seed=seed, on_batch=on_batch)
+
+
 def perturbed(data, rng, prior: bool = True):
     """The fit data with Gaussian noise at each line's stated standard error and, where
     `prior`, the prior's centre drawn from the prior (`FitData.prior_shift`)."""
@@ -105,19 +116,14 @@ def refit(result, n: int = REFITS, seed: int = 0, options: SolveOptions | None =
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     options = SolveOptions() if options is None else options
-    rows, max_std = full_used_mask(problem), no_information_std(problem)
     keep = []
     batch = 4 * 8  # whole lane classes of `solve` (4): one compiled program
     for lo in range(0, n, batch):
         m = min(batch, n - lo)
         datas = [perturbed(problem.fit_data, rng) for _ in range(m)]
         out = solve(np.tile(theta, (m, 1)), True, datas, problem.structure, options)
-        rr = problem._residual_rows(out["residual"].shape[1])
-        for k in range(m):
-            step = remaining_step(out["residual"][k][rr], out["jacobian"][k][rr], rows,
-                                  max_std)
-            if step < STEP_TOL and np.all(np.isfinite(out["theta"][k])):
-                keep.append(out["theta"][k])
+        keep += [th for th, (_, _, step) in zip(out["theta"], solved_lanes(problem, out))
+                 if step < STEP_TOL and np.all(np.isfinite(th))]
         if on_batch is not None:
             on_batch(lo + m, n)
     th = np.asarray(keep, float).reshape(-1, theta.size)

@@ -5,7 +5,7 @@ The bundled preload-loss test is identified (PRELOAD_FIT); its fit data get Gaus
 noise at their stated standard errors and the prior's centre a draw from the prior (the
 randomised-maximum-likelihood refits `bsfs identify --refits` saves,
 `identification._refits.perturbed`), and N refits from the estimate run as one batched
-optimistix solve (`identification._solve.solve`). For the first natural frequency, the
+optimistix solve (`identification.refit`). For the first natural frequency, the
 damping ratio and the static stiffness (exact value, gradient and Hessian in the fitted
 coordinates) it prints, in the delta method's standard deviations:
 
@@ -19,7 +19,6 @@ coordinates) it prints, in the delta method's standard deviations:
 """
 
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
@@ -30,8 +29,6 @@ jax.config.update("jax_enable_x64", True)
 import identification as idn  # noqa: E402
 from identification._forecast import identified_from_result  # noqa: E402
 from identification._forecast_run import _modal_program  # noqa: E402
-from identification._refits import perturbed  # noqa: E402
-from identification._solve import solve  # noqa: E402
 
 NAMES = ("natural_frequency_1_hz", "damping_ratio_1", "static_stiffness")
 
@@ -45,13 +42,9 @@ def main(n: int) -> None:
                                                           jnp.asarray(theta)))
     cov = ident.covariance
     sd = np.sqrt(np.diag(jac @ cov @ jac.T))
-    rng = np.random.default_rng(1)
-    datas = [perturbed(res.problem.fit_data, rng) for _ in range(n)]
-    t = time.perf_counter()
-    out = solve(np.tile(theta, (n, 1)), np.ones((n, theta.size), bool), datas,
-                res.problem.structure)
-    print(f"{n} refits in {time.perf_counter() - t:.1f} s")
-    boot = np.asarray(out["theta"])
+    refits = idn.refit(res, n, seed=1)
+    print(f"{n} refits in {refits.seconds:.1f} s, {refits.converged} converged")
+    boot = refits.theta
     exact = np.array([np.asarray(_modal_program(ident.coordinates, jnp.asarray(th))[0])
                       for th in boot])
     gauss = np.random.default_rng(7).multivariate_normal(np.zeros(theta.size), cov,

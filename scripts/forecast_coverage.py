@@ -82,9 +82,8 @@ def identified_folder(records, prior, folder: Path):
     folder.mkdir(parents=True, exist_ok=True)
     idn.write_identified(res, folder)
     report = idn.report_dict(res)
-    if (res.fit.converged and idn.refits_by_default(res)
-            and not os.environ.get("BSFS_COVERAGE_NO_REFITS")):
-        refits = idn.refit(res, idn.REFITS)
+    refits = (None if os.environ.get("BSFS_COVERAGE_NO_REFITS") else idn.refits_for(res))
+    if refits is not None:
         report["refits"] = refits.as_dict()
         idn.save_refits(refits, folder, res.fit.values)
     write_json(folder / "report.json", report)

@@ -196,20 +196,17 @@ def run_identify(args) -> int:
 
 
 def _refits(res, args):
-    """The refits `--refits` asks for (auto: `identification.refits_by_default`); None for
-    none, or where the fit did not converge (`bsfs predict` refuses it)."""
-    import identification as idn
-
-    n = args.refits
-    if n == "auto":
-        n = idn.REFITS if idn.refits_by_default(res) else 0
-    if n == 0 or not res.fit.converged:
-        return None
+    """The refits `--refits` asks for (`identification.refits_for`), with a progress bar."""
     from tqdm.auto import tqdm
 
-    with tqdm(total=n, desc="refits", unit="fit", disable=not ui.progress_enabled(args)) as bar:
-        return idn.refit(res, n, seed=args.seed,
-                         on_batch=lambda done, _n: bar.update(done - bar.n))
+    import identification as idn
+
+    with tqdm(desc="refits", unit="fit", disable=not ui.progress_enabled(args)) as bar:
+        def on_batch(done, n):
+            bar.total = n
+            bar.update(done - bar.n)
+
+        return idn.refits_for(res, args.refits, seed=args.seed, on_batch=on_batch)
 
 
 def _refits_line(refits) -> str:
