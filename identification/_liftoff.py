@@ -1,5 +1,5 @@
 """The forecast's lift-off force (`liftoff_force_n`): per joint on the linearised model,
-then for the first joint to open on the nonlinear orbits at the FRC peak."""
+then for each joint on the nonlinear orbits at the FRC peak."""
 
 from __future__ import annotations
 
@@ -46,11 +46,21 @@ def _linear_liftoff_program(coords, theta, f_at):
 
 @bsfs_jax.cached_jit
 def _min_deformation_program(coords, theta, force, hint, joint):
-    """`joint_min_deformation` at theta and force, with its gradients in both."""
+    """`joint_min_deformation` at theta and force, with its gradients in both; `joint` a
+    traced index into `JOINTS` (one program for both joints)."""
     import jax
 
     return jax.value_and_grad(lambda th, f: joint_min_deformation(
         coords.at(th), f, hint, joint), argnums=(0, 1))(theta, force)
+
+
+def min_deformation(coords, theta, force, hint, joint: str):
+    """(value, (d/dtheta, d/dforce)) of `joint_min_deformation` (compiled once)."""
+    import jax.numpy as jnp
+
+    return _min_deformation_program(coords, jnp.asarray(theta, float),
+                                    jnp.asarray(force, float), hint,
+                                    jnp.asarray(JOINTS.index(joint)))
 
 
 def linear_liftoff(ident, start, stop):
@@ -96,7 +106,8 @@ LIFTOFF_RTOL = 1e-4
 
 def joint_min_deformation(params, force, hint, joint):
     """Smallest contact deformation [m] of a joint's two sides over the orbit at a located
-    FRC peak (differentiable: `bsfs_jax.design.peak_orbit_samples`); <= 0: a side opens."""
+    FRC peak (differentiable: `bsfs_jax.design.peak_orbit_samples`); <= 0: a side opens.
+    `joint`: a name in `JOINTS` or its (traced) index."""
     import jax
     import jax.numpy as jnp
 
@@ -104,9 +115,14 @@ def joint_min_deformation(params, force, hint, joint):
     from bsfs_jax.physics import contact_deformations
 
     ys, system = peak_orbit_samples(params, force, hint)
-    u = ys[:, 0] if joint == "bearing" else ys[:, 2] - ys[:, 1]
-    pair = system.bearing if joint == "bearing" else system.nut
-    deformations = jnp.stack(contact_deformations(u, pair)).ravel()
+    both = [jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel(),
+            jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()]
+    both = dict(zip(("bearing", "nut"), both))
+    if isinstance(joint, str):
+        deformations = both[joint]
+    else:
+        deformations = jnp.where(jnp.asarray(joint) == JOINTS.index("bearing"),
+                                 both["bearing"], both["nut"])
     # The smallest sample, chosen without gradient, then differentiated (the minimum over
     # the orbit is stationary in time, so this is its exact derivative). Not `jnp.min`:
     # the orbit's half-period symmetry makes one side's smallest sample bit-equal to the
@@ -132,34 +148,54 @@ def carried_hessian(value, grad, lin_value, lin_grad, lin_hess):
 
 
 def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
-    """`liftoff_force_n`, and `per_joint` with its first joint's entry on the nonlinear
-    orbits: the force F* at which that joint's smallest contact deformation at the FRC
-    peak reaches zero (secant from the linearised value), with dF*/dtheta = -m_theta / m_F
+    """`liftoff_force_n`, and `per_joint` with each joint's entry on the nonlinear orbits:
+    the force F* at which that joint's smallest contact deformation at the FRC peak
+    reaches zero (secant from the linearised value), with dF*/dtheta = -m_theta / m_F
     (implicit, reverse mode). On the bundled worn drive the linearised bearing value was
     61.5 N (95 % interval 61.3-62.0 N) and the orbits open at 59.9 N: the linearised
-    interval missed it. Its interval is checked at second order like the other quantities
-    (`from_hessian`), with the Hessian carried over from the linearised value's
-    (`carried_hessian`; `derivs`: `linear_liftoff`'s values, Jacobians and Hessians).
-    Where the search fails the linearised value is kept and says so.
-    The other joint stays linearised (it opens after the first, on orbits that have
-    already lost contact)."""
-    import jax.numpy as jnp
+    interval missed it. The joint that opens second does so on orbits on which the first
+    has already lost contact: there the linearised value was 97.0 N (95.8-98.2 N) for the
+    nut and the orbits open at 101.6 N (shooting agreed with harmonic balance to 0.02 N),
+    so it is searched on the orbits too. Each interval is checked at second order like
+    the other quantities (`from_hessian`), with the Hessian carried over from the joint's
+    linearised value's (`carried_hessian`; `derivs`: `linear_liftoff`'s values, Jacobians
+    and Hessians). Where a search fails the linearised value is kept and says so."""
+    first = int(np.argmin([q.value for q in per_joint]))
+    per = list(per_joint)
+    found = {}
+    # The first joint's orbits open a few per cent below its linearised value (the pair
+    # softens); the second joint's above it (the first has let go): secant starts either
+    # side of where each was found on the worn drive.
+    for k, (f0, f1) in ((first, (0.9, 0.95)), (1 - first, (1.0, 1.05))):
+        lin = per_joint[k]
+        q, f_star = _joint_on_orbits(ident, k, lin, derivs, start, stop,
+                                     f0 * lin.value, f1 * lin.value)
+        per[k] = q
+        found[k] = f_star
+    joint = JOINTS[first]
+    second = JOINTS[1 - first]
+    if found[first] is not None:
+        note = (f"the {second} loses contact on orbits on which the {joint} has already "
+                f"lost contact (from {found[first]:.1f} N)")
+        per[1 - first].extra["note"] = (per[1 - first].extra.get("note", "") + "; "
+                                        + note).lstrip("; ")
+    total = dataclasses.replace(per[first], name="liftoff_force_n", extra=dict(
+        per[first].extra, joint=joint, per_joint={j: q.value for j, q in zip(JOINTS, per)}))
+    return total, per
 
+
+def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
+    """(quantity, F* or None): joint `JOINTS[k]`'s lift-off force on the nonlinear orbits,
+    or its linearised quantity `lin` with the reason where the search failed."""
     from bsfs_jax.design import OrbitSettings
 
-    first = int(np.argmin([q.value for q in per_joint]))
-    joint, lin = JOINTS[first], per_joint[first]
+    joint = JOINTS[k]
     settings = OrbitSettings(frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL)
     coords = ident.coordinates
 
     def m_and_grads(force, hint, th):
-        (value, (g_theta, g_f)) = _min_deformation_program(
-            coords, jnp.asarray(th, float), jnp.asarray(force, float), hint, joint)
+        (value, (g_theta, g_f)) = min_deformation(coords, th, force, hint, joint)
         return float(value), np.asarray(g_theta), float(g_f)
-
-    def total(q):
-        return dataclasses.replace(q, name="liftoff_force_n", extra=dict(
-            q.extra, joint=joint, per_joint={j: p.value for j, p in zip(JOINTS, per)}))
 
     def search(th, f0, f1):
         """(F*, hint at F*, m_theta and m_F there) on the model at th: secant in the force
@@ -181,12 +217,11 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
                 return f1, *last[::-1]
         raise ForecastError("no convergence")
 
-    per = list(per_joint)
     try:
-        f1, hint, g_f, g_theta = search(ident.theta, 0.9 * lin.value, 0.95 * lin.value)
+        f_star, hint, g_f, g_theta = search(ident.theta, f0, f1)
     except (ForecastError, ZeroDivisionError):
         lin.extra["nonlinear"] = "the search on the nonlinear orbits failed: linearised value"
-        return total(lin), per
+        return lin, None
     how = "implicit"
     grad = -g_theta / g_f if g_f != 0 else np.full_like(g_theta, np.nan)
     if not np.all(np.isfinite(grad)):
@@ -200,26 +235,22 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
             e = np.zeros_like(grad)
             e[i] = h
             try:
-                grad[i] = (search(ident.theta + e, 0.99 * f1, f1)[0]
-                           - search(ident.theta - e, 0.99 * f1, f1)[0]) / (2 * h)
+                grad[i] = (search(ident.theta + e, 0.99 * f_star, f_star)[0]
+                           - search(ident.theta - e, 0.99 * f_star, f_star)[0]) / (2 * h)
             except (ForecastError, ZeroDivisionError):
                 lin.extra["nonlinear"] = ("the lift-off force's gradient failed on the "
                                           "nonlinear orbits: linearised value")
-                return total(lin), per
+                return lin, None
     values, jac, hess = derivs
-    per[first] = from_hessian(
-        lin.name, "N", f1, grad, carried_hessian(f1, grad, values[first], jac[first],
-                                                 hess[first]), ident,
+    q = from_hessian(
+        lin.name, "N", f_star, grad, carried_hessian(f_star, grad, values[k], jac[k],
+                                                     hess[k]), ident,
         method="delta (nonlinear orbit at the FRC peak)",
         quadratic="quadratic (nonlinear orbit; Hessian carried from the linearised joints)",
         approximate=True, extra=dict(
             frequency_hz=float(hint.frequency_hz), linearised_n=lin.value, gradient=how,
-            note="the force at which the first joint to open loses contact on the periodic "
-                 "orbit at the FRC peak (harmonic balance); its second-order check uses "
-                 "the linearised lift-off's exact Hessian carried to the orbits "
-                 "(F* = r F_lin, r's own curvature left out)"))
-    for i, q in enumerate(per):
-        if i != first:
-            q.extra["note"] = (f"linearised: the {joint} opens first, at {f1:.1f} N; beyond it "
-                               "the orbits have lost contact")
-    return total(per[first]), per
+            note=f"the force at which the {joint} loses contact on the periodic orbit at the "
+                 "FRC peak (harmonic balance); its second-order check uses the linearised "
+                 "lift-off's exact Hessian carried to the orbits (F* = r F_lin, r's own "
+                 "curvature left out)"))
+    return q, f_star

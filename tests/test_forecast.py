@@ -269,12 +269,12 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     # and that gradient in the force matches central differences of the deformation on
     # orbits located afresh 0.5 N either side.
     assert q["gradient"] == "implicit"
-    from identification._liftoff import _min_deformation_program
+    from identification._liftoff import min_deformation
 
     force = q["plug_in"]
     hint, _ = locate_frc_peak(params, force, settings)
-    _, (g_theta, g_f) = _min_deformation_program(
-        ident.coordinates, jnp.asarray(ident.theta), jnp.asarray(force), hint, "bearing")
+    _, (g_theta, g_f) = min_deformation(ident.coordinates, ident.theta, force, hint,
+                                        "bearing")
     m = [float(joint_min_deformation(params, f, locate_frc_peak(params, f, settings)[0],
                                      "bearing")) for f in (force - 0.5, force + 0.5)]
     assert float(g_f) < 0
@@ -297,6 +297,33 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     second = sum(x.extra.get("plug_in", x.value) for x in at) - 2 * force
     assert second == pytest.approx(step @ h @ step, rel=0.1)
     assert abs(second) > 0.1 * q["std"]  # a curvature that matters
+
+
+def test_second_joints_liftoff_is_found_on_orbits_where_the_first_has_opened(folders):
+    """The joint that opens second (the nut, after the bearing) is searched on the
+    nonlinear orbits too: its lift-off lies above the linearised value (the bearing has let
+    go), outside the linearised interval (the answer this replaced), and the orbits 2 %
+    either side of it are closed and open at the nut."""
+    from identification._liftoff import joint_min_deformation
+
+    ident_dir, _, data = folders
+    ident = load_identified(ident_dir)
+    nut = {x["name"]: x for x in data["per_joint_liftoff"]}["liftoff_force_nut_n"]
+    bearing = {x["name"]: x for x in data["quantities"]}["liftoff_force_n"]
+    assert nut["method"].startswith("quadratic (nonlinear orbit") or \
+        nut["method"] == "delta (nonlinear orbit at the FRC peak)"
+    assert nut["gradient"] == "implicit" and "already lost contact" in nut["note"]
+    value = nut.get("plug_in", nut["value"])
+    assert value > bearing["value"]
+    assert value > nut["linearised_n"] + 3 * nut["std"]
+    lo, hi = nut["ci95"]
+    assert lo < nut["value"] < hi
+    params = ident.params_at(ident.theta)
+    settings = OrbitSettings(frc_method="hb", frc_tol=1e-4)
+    for factor, sign in ((0.98, 1.0), (1.02, -1.0)):
+        force = factor * value
+        hint, _ = locate_frc_peak(params, force, settings)
+        assert sign * float(joint_min_deformation(params, force, hint, "nut")) > 0
 
 
 def _refused(args, capsys, out):
