@@ -252,7 +252,7 @@ def _quantity(name, unit, v, ci, method, g, ident, scale, extra):
 
 
 def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
-             approximate=False):
+             approximate=False, exact=None):
     """The delta interval where the quadratic model's second-order std
     sqrt(tr((H C)^2) / 2) is at most `SECOND_ORDER_TOL` of the linear std; else the 2.5-97.5 %
     range of value + g.delta + delta.H.delta / 2 over `DRAWS` draws of delta from the
@@ -274,7 +274,12 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
     0.95 and 1.07, and over replicates 200-299 the probed intervals were 9 % narrower
     than the delta's and covered 88-94 % (docs/COVERAGE.md). So each side of its
     interval is at least the delta method's half-width from the value (`extra["floor"]`
-    says where that applied)."""
+    says where that applied).
+
+    `exact`: where the identification saved draws (posterior or refits), a callable that
+    returns the model itself at each of them (one vmapped batch); used instead of the
+    quadratic model (method "model at each draw, ..."), the quadratic model's range kept
+    in `extra["quadratic_ci95"]` for comparison."""
     c = ident.covariance
     sd = _std(g, ident)
     hc = h @ c
@@ -291,6 +296,14 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
         rng = np.random.default_rng(DRAW_SEED)
         delta = rng.multivariate_normal(np.zeros(len(g)), c, size=DRAWS, method="eigh")
     q = float(value) + delta @ g + 0.5 * np.einsum("ni,ij,nj->n", delta, h, delta)
+    if exact is not None and ident.draws is not None:
+        at = np.asarray(exact(), float)
+        if at.shape == q.shape and np.all(np.isfinite(at)):
+            extra["quadratic_ci95"] = [float(x) * scale for x in np.percentile(q, [2.5, 97.5])]
+            quadratic = f"model at each draw, {ident.draws_kind or 'posterior draws'}"
+            q = at
+        else:
+            extra["exact_failed"] = "the model failed at a draw: quadratic model used"
     lo, median, hi = np.percentile(q, [2.5, 50.0, 97.5])
     extra.update(draws=len(delta), draws_std=float(np.std(q)) * scale,
                  plug_in=float(value) * scale)
@@ -306,13 +319,13 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
 
 def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
                  method="delta", quadratic="quadratic (exact Hessian)", extra=None,
-                 approximate=False) -> Quantity:
+                 approximate=False, exact=None) -> Quantity:
     """A cheap quantity (modal, linearised lift-off) with its exact gradient and Hessian,
     checked at second order (`_checked`, method "quadratic (exact Hessian)" where
     doubtful; draws of the model itself, tried first, twice left the process waiting
     forever inside XLA on the 2-core machine)."""
     return _checked(name, unit, value, np.asarray(grad, float), np.asarray(hess, float),
-                    ident, scale, method, quadratic, dict(extra or {}), approximate)
+                    ident, scale, method, quadratic, dict(extra or {}), approximate, exact)
 
 
 def probe_steps(ident: Identified, k: int = 3) -> np.ndarray:

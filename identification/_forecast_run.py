@@ -15,12 +15,11 @@ from ._forecast import (
     ForecastError,
     Identified,
     Quantity,
-    from_hessian,
     from_probes,
     locate_peak,
     probe_steps,
-    value_jac_hess,
 )
+from ._forecast_modal import _modal
 from ._liftoff import linear_liftoff, nonlinear_liftoff
 from ._parameters import require_x64
 
@@ -37,18 +36,6 @@ PROBES = 3  # least determined directions probed for the FRC quantities' second 
 # Each forecast evaluation is one compiled program that takes the identification as an
 # argument (`Coordinates`: arrays traced, fitted keys static): a cold `bsfs predict` compiles
 # each once instead of every primitive eagerly, and the coverage study's replicates share them.
-
-
-@bsfs_jax.cached_jit
-def _modal_program(coords, theta):
-    """(value, Jacobian, Hessian) of [f1, zeta1, static stiffness]."""
-    import jax.numpy as jnp
-
-    def fn(th):
-        m = bsfs_jax.modes(bsfs_jax.build_system(coords.at(th)))
-        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
-
-    return value_jac_hess(fn, theta)
 
 
 def _frc_gradients(coords, theta, force, specs) -> dict:
@@ -97,22 +84,6 @@ def _hyperplane_gradients(coords, theta, force, hints):
                                                       ImplicitForward()))(theta)
 
     return jax.vmap(one)(hints)
-
-
-def _modal(ident: Identified):
-    """natural_frequency_1_hz, damping_ratio_1, static_stiffness_n_per_um: exact gradients
-    and Hessians (`from_hessian`)."""
-    import jax.numpy as jnp
-
-    value, jac, hess = (np.asarray(a) for a in _modal_program(
-        ident.coordinates, jnp.asarray(ident.theta, float)))
-    out = []
-    for k, (name, unit, scale) in enumerate((("natural_frequency_1_hz", "Hz", 1.0),
-                                             ("damping_ratio_1", "-", 1.0),
-                                             ("static_stiffness_n_per_um", "N/um", 1e-6))):
-        out.append(from_hessian(name, unit, value[k], jac[k], hess[k], ident,
-                                scale=scale))
-    return out, float(value[0])
 
 
 def _folds(branch):

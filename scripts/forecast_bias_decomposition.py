@@ -38,7 +38,7 @@ import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
 import identification._choice as choice  # noqa: E402
 from identification._forecast import identified_from_result  # noqa: E402
-from identification._forecast_run import _modal_program  # noqa: E402
+from identification._forecast_modal import _modal_program  # noqa: E402
 
 
 def decompose(truth, prior, k: int) -> dict:

@@ -28,7 +28,7 @@ jax.config.update("jax_enable_x64", True)
 
 import identification as idn  # noqa: E402
 from identification._forecast import identified_from_result  # noqa: E402
-from identification._forecast_run import _modal_program  # noqa: E402
+from identification._forecast_modal import _modal_program  # noqa: E402
 
 NAMES = ("natural_frequency_1_hz", "damping_ratio_1", "static_stiffness")
 

@@ -111,7 +111,8 @@ def test_bootstrap_refits_carry_the_estimates_own_skew(folders, tmp_path):
     """`bsfs identify` saved 200 randomised-maximum-likelihood refits (refits.npz) and
     `bsfs predict` used them where the delta method is doubtful. Their spread is the
     covariance's (each parameter's std within 20 %, about 4 of its own standard errors);
-    the damping ratio's interval is the exact model's 2.5-97.5 % range over them; and over
+    the damping ratio's interval is the model's own 2.5-97.5 % range over them (pushed
+    through it in batches), the quadratic model's within 5 % of it; and over
     1000 refits its value sits at the model at the estimate (within 0.15 std), where the
     Gaussian draws' quadratic model moves it by tr(H C) / 2 (0.2 std and more): the bias
     the forecast's coverage study measured (docs/COVERAGE.md). A stale refits.npz (another
@@ -125,7 +126,7 @@ def test_bootstrap_refits_carry_the_estimates_own_skew(folders, tmp_path):
     np.testing.assert_allclose(np.std(ident.draws, axis=0, ddof=1) / sd, 1.0, atol=0.2)
     q = {x["name"]: x for x in data["quantities"]}
     zeta = q["damping_ratio_1"]
-    assert zeta["method"] == "quadratic (exact Hessian), bootstrap refits"
+    assert zeta["method"] == "model at each draw, bootstrap refits"
     assert zeta["draws"] == 200
     assert data["draws"] == "200 bootstrap refits (refits.npz)"
 
@@ -134,7 +135,8 @@ def test_bootstrap_refits_carry_the_estimates_own_skew(folders, tmp_path):
 
     exact = np.asarray(jax.vmap(damping)(jnp.asarray(ident.draws)))
     lo, hi = np.percentile(exact, [2.5, 97.5])
-    assert zeta["ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
+    assert zeta["ci95"] == pytest.approx([lo, hi], abs=1e-6 * (hi - lo))
+    assert zeta["quadratic_ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
     # The median's shift from the plug-in, over 1000 refits of the same identification
     # in memory (200 leave it +-0.09 std: -0.20, +0.05, -0.01 for seeds 0-2).
     import identification as idn
@@ -214,14 +216,15 @@ def test_posterior_draws_replace_the_gaussian_ones_where_the_delta_is_doubtful(f
     assert ident.draws.shape == (n, len(ident.theta))
     np.testing.assert_allclose(ident.draws, theta, rtol=1e-9, atol=1e-12)
     zeta = {q.name: q for q in _modal(ident)[0]}["damping_ratio_1"]
-    assert zeta.method == "quadratic (exact Hessian), posterior draws"
+    assert zeta.method == "model at each draw, posterior draws"
 
     def damping(th):
         return bsfs_jax.modes(bsfs_jax.build_system(ident.params_at(th))).damping_ratios[0]
 
     direct = np.asarray(jax.vmap(damping)(jnp.asarray(theta)))
     lo, hi = np.percentile(direct, [2.5, 97.5])
-    assert zeta.ci95 == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
+    assert zeta.ci95 == pytest.approx([lo, hi], abs=1e-6 * (hi - lo))
+    assert zeta.extra["quadratic_ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
     assert hi - lo > 1.1 * (gaussian[1] - gaussian[0])
 
 

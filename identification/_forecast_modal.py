@@ -1,0 +1,76 @@
+"""The forecast's modal quantities (`natural_frequency_1_hz`, `damping_ratio_1`,
+`static_stiffness_n_per_um`): exact gradients and Hessians in one program, and the model
+itself at the identification's draws where the delta method is doubtful."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+import bsfs_jax
+
+from ._forecast import Identified, from_hessian, value_jac_hess
+
+
+@bsfs_jax.cached_jit
+def _modal_program(coords, theta):
+    """(value, Jacobian, Hessian) of [f1, zeta1, static stiffness]."""
+    import jax.numpy as jnp
+
+    def fn(th):
+        m = bsfs_jax.modes(bsfs_jax.build_system(coords.at(th)))
+        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
+
+    return value_jac_hess(fn, theta)
+
+
+@bsfs_jax.cached_jit
+def _modal_at_draws(coords, thetas):
+    """(n, 3): [f1, zeta1, static stiffness] of the model at each row of `thetas`."""
+    import jax
+    import jax.numpy as jnp
+
+    def fn(th):
+        m = bsfs_jax.modes(bsfs_jax.build_system(coords.at(th)))
+        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
+
+    return jax.vmap(fn)(thetas)
+
+
+DRAW_BATCH = 256  # draws pushed through the model per call (one program for any count)
+
+
+def _modal_draws(ident: Identified) -> np.ndarray:
+    """`_modal_at_draws` at the identification's draws, in batches of `DRAW_BATCH` (the
+    last padded with the estimate): one program for any count of refits or draws."""
+    import jax.numpy as jnp
+
+    n = len(ident.draws)
+    thetas = np.concatenate([ident.draws,
+                             np.repeat(ident.theta[None], -n % DRAW_BATCH, axis=0)])
+    return np.concatenate([np.asarray(_modal_at_draws(
+        ident.coordinates, jnp.asarray(thetas[i:i + DRAW_BATCH], float)))
+        for i in range(0, len(thetas), DRAW_BATCH)])[:n]
+
+
+def _modal(ident: Identified):
+    """natural_frequency_1_hz, damping_ratio_1, static_stiffness_n_per_um: exact gradients
+    and Hessians (`from_hessian`); where the second-order check finds the delta method
+    doubtful and the identification saved draws (refits or posterior), the model itself
+    at each draw, in one vmapped batch (`_modal_at_draws`)."""
+    import jax.numpy as jnp
+
+    value, jac, hess = (np.asarray(a) for a in _modal_program(
+        ident.coordinates, jnp.asarray(ident.theta, float)))
+    at_draws = functools.cache(lambda: _modal_draws(ident))
+    out = []
+    for k, (name, unit, scale) in enumerate((("natural_frequency_1_hz", "Hz", 1.0),
+                                             ("damping_ratio_1", "-", 1.0),
+                                             ("static_stiffness_n_per_um", "N/um", 1e-6))):
+        exact = None if ident.draws is None else (lambda k=k: at_draws()[:, k])
+        out.append(from_hessian(name, unit, value[k], jac[k], hess[k], ident,
+                                scale=scale, exact=exact))
+    return out, float(value[0])
+
+
