@@ -83,7 +83,8 @@ def linear_liftoff(ident, start, stop):
     f_at = []
     for j in JOINTS:
         k = int(np.argmax(rec[j]))
-        fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, GRID - 1)], 401)
+        # the same length as the grid: one receptance program for both
+        fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, GRID - 1)], GRID)
         f_at.append(float(fine[np.argmax(receptances(fine)[j])]))
     values, jac, hess = (np.asarray(a) for a in _linear_liftoff_program(
         coords, theta, jnp.asarray(f_at, float)))
@@ -100,6 +101,10 @@ def linear_liftoff(ident, start, stop):
 # contact law's kink appears just past lift-off), secant steps, stop at this fraction of
 # the first two deformations.
 LIFTOFF_SETTINGS_TOL = 1e-4
+# Its first harmonic count: on the worn drive the second joint's search needs 32 (the
+# first's 16), so both start there, and the two searches share one corrector program and
+# one deformation program (from 8, the count climbed through 8, 16 and 32: three of each).
+LIFTOFF_HARMONICS = 32
 LIFTOFF_STEPS = 8
 LIFTOFF_RTOL = 1e-4
 
@@ -190,7 +195,8 @@ def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
     from bsfs_jax.design import OrbitSettings
 
     joint = JOINTS[k]
-    settings = OrbitSettings(frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL)
+    settings = OrbitSettings(frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL,
+                             frc_harmonics=LIFTOFF_HARMONICS)
     coords = ident.coordinates
 
     def m_and_grads(force, hint, th):
