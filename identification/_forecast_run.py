@@ -237,6 +237,12 @@ def health(quantities: dict, force: float) -> dict:
                 verdict = "undetermined"
             lines.append(f"preload {pre.extra['retained_percent']:.0f} % of nominal "
                          f"(95 % CI {lo:.0f}-{hi:.0f} %)")
+        if lift.ci95 is None:
+            contact = f"lift-off force not determined ({lift.reason})"
+            out[joint] = dict(verdict=verdict, contact=contact,
+                              line=f"{joint}: {verdict}; " + "; ".join(lines + [contact]),
+                              margin_n=None, margin_ci95_n=None)
+            continue
         l_lo, l_hi = lift.ci95
         if force >= l_hi:
             contact = f"contact loss expected above {l_hi:.0f} N"

@@ -107,6 +107,11 @@ LIFTOFF_SETTINGS_TOL = 1e-4
 LIFTOFF_HARMONICS = 32
 LIFTOFF_STEPS = 8
 LIFTOFF_RTOL = 1e-4
+# ... or where a secant step moves the force by less than this fraction of it: the
+# deformation at the located peak carries noise of about 1e-4 um (the continuation's
+# tolerances), which on coverage replicate 78 kept the nut's secant hopping within 0.004 N
+# of 102.506 N without meeting the test above (its lift-off's std: 0.55 N).
+LIFTOFF_FTOL = 1e-4
 
 
 def joint_min_deformation(params, force, hint, joint):
@@ -219,15 +224,14 @@ def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
             f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
             m2, *step = m(f2)
             f0, m0, f1, m1, last = f1, m1, f2, m2, step
-            if abs(m1) < LIFTOFF_RTOL * scale:
+            if abs(m1) < LIFTOFF_RTOL * scale or abs(f1 - f0) < LIFTOFF_FTOL * abs(f1):
                 return f1, *last[::-1]
         raise ForecastError("no convergence")
 
     try:
         f_star, hint, g_f, g_theta = search(ident.theta, f0, f1)
-    except (ForecastError, ZeroDivisionError):
-        lin.extra["nonlinear"] = "the search on the nonlinear orbits failed: linearised value"
-        return lin, None
+    except (ForecastError, ZeroDivisionError) as exc:
+        return undetermined(lin, f"the search on the nonlinear orbits failed ({exc})"), None
     how = "implicit"
     grad = -g_theta / g_f if g_f != 0 else np.full_like(g_theta, np.nan)
     if not np.all(np.isfinite(grad)):
@@ -244,9 +248,8 @@ def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
                 grad[i] = (search(ident.theta + e, 0.99 * f_star, f_star)[0]
                            - search(ident.theta - e, 0.99 * f_star, f_star)[0]) / (2 * h)
             except (ForecastError, ZeroDivisionError):
-                lin.extra["nonlinear"] = ("the lift-off force's gradient failed on the "
-                                          "nonlinear orbits: linearised value")
-                return lin, None
+                return undetermined(lin, "the lift-off force's gradient failed on the "
+                                         "nonlinear orbits"), None
     values, jac, hess = derivs
     q = from_hessian(
         lin.name, "N", f_star, grad, carried_hessian(f_star, grad, values[k], jac[k],
@@ -260,3 +263,14 @@ def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
                  "lift-off's exact Hessian carried to the orbits (F* = r F_lin, r's own "
                  "curvature left out)"))
     return q, f_star
+
+
+def undetermined(lin, why: str):
+    """The lift-off quantity where the search on the orbits failed: no value and no
+    interval, with the reason and the linearised value for reference. Not the linearised
+    interval: on the worn drive the orbits open outside it (4.8 N above it for the nut)."""
+    return dataclasses.replace(
+        lin, value=None, ci95=None, method="not determined", reason=(
+            f"{why}; the linearised joint says {lin.value:.1f} N, which the orbits can miss "
+            "by more than its interval"),
+        extra=dict(lin.extra, linearised_n=lin.value))

@@ -329,6 +329,32 @@ def test_second_joints_liftoff_is_found_on_orbits_where_the_first_has_opened(fol
         assert sign * float(joint_min_deformation(params, force, hint, "nut")) > 0
 
 
+def test_a_failed_liftoff_search_gives_no_interval_and_says_so(folders):
+    """Where the search on the orbits fails, the lift-off force has no value and no
+    interval (not the linearised one, which the orbits miss: 97.0 N linearised against
+    101.8 N for the worn drive's nut), and the joint's health line says it was not
+    determined instead of giving a margin."""
+    from identification._forecast import Quantity
+    from identification._forecast_run import health
+    from identification._liftoff import undetermined
+
+    _, _, data = folders
+    by_name = {x["name"]: Quantity(x["name"], x["unit"], x["value"], x["ci95"], x["method"],
+                                   x["dominated_by"], extra={k: v for k, v in x.items() if
+                                                             k.startswith("retained")})
+               for x in data["quantities"] + data["per_joint_liftoff"]}
+    lin = by_name["liftoff_force_nut_n"]
+    failed = undetermined(lin, "the search on the nonlinear orbits failed (no convergence)")
+    assert failed.value is None and failed.ci95 is None and failed.method == "not determined"
+    assert "no convergence" in failed.reason and f"{lin.value:.1f} N" in failed.reason
+    assert failed.extra["linearised_n"] == lin.value
+    h = health(by_name | {"liftoff_force_nut_n": failed}, FORCE)
+    assert "lift-off force not determined" in h["nut"]["line"]
+    assert h["nut"]["margin_n"] is None and h["nut"]["margin_ci95_n"] is None
+    assert h["nut"]["verdict"] == "preload loss significant"
+    assert "contact kept" in h["bearing"]["line"]
+
+
 def _refused(args, capsys, out):
     assert main(["predict", *args, "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip()
