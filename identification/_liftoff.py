@@ -169,19 +169,24 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
     so it is searched on the orbits too. Each interval is checked at second order like
     the other quantities (`from_hessian`), with the Hessian carried over from the joint's
     linearised value's (`carried_hessian`; `derivs`: `linear_liftoff`'s values, Jacobians
-    and Hessians). Where a search fails the linearised value is kept and says so."""
+    and Hessians). Where a search fails the quantity has no value and no interval, and says
+    why (`undetermined`). The two searches run on two threads (their programs are the same;
+    XLA runs them without Python's lock)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     first = int(np.argmin([q.value for q in per_joint]))
     per = list(per_joint)
     found = {}
     # The first joint's orbits open a few per cent below its linearised value (the pair
     # softens); the second joint's above it (the first has let go): secant starts either
     # side of where each was found on the worn drive.
-    for k, (f0, f1) in ((first, (0.9, 0.95)), (1 - first, (1.0, 1.05))):
-        lin = per_joint[k]
-        q, f_star = _joint_on_orbits(ident, k, lin, derivs, start, stop,
-                                     f0 * lin.value, f1 * lin.value)
-        per[k] = q
-        found[k] = f_star
+    starts = ((first, (0.9, 0.95)), (1 - first, (1.0, 1.05)))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        jobs = [(k, pool.submit(_joint_on_orbits, ident, k, per_joint[k], derivs, start,
+                                stop, f0 * per_joint[k].value, f1 * per_joint[k].value))
+                for k, (f0, f1) in starts]
+        for k, job in jobs:
+            per[k], found[k] = job.result()
     joint = JOINTS[first]
     second = JOINTS[1 - first]
     if found[first] is not None:
