@@ -271,17 +271,18 @@ def _band(ident: Identified, settings, start_hz, stop_hz):
 
 
 def forecast_liftoff(ident: Identified, *, start_hz=None, stop_hz=None,
-                     settings=None) -> dict:
+                     settings=None, second_joint: bool = True) -> dict:
     """The lift-off part of `forecast` alone (the same computation, on the same band):
     {"quantities": [liftoff_force_n], "per_joint_liftoff": [...]}. For studies of the
-    lift-off's interval that need not continue the FRC."""
+    lift-off's interval that need not continue the FRC. `second_joint=False`: the joint
+    that opens second is left linearised (its search on the orbits skipped)."""
     require_x64("identification.forecast_liftoff")
     from bsfs_jax.design import OrbitSettings
 
     settings = OrbitSettings() if settings is None else settings
     _, _, start, stop = _band(ident, settings, start_hz, stop_hz)
     lift, per_joint = nonlinear_liftoff(ident, *linear_liftoff(ident, start, stop), start,
-                                         stop)
+                                         stop, second=second_joint)
     return dict(quantities=[lift], per_joint_liftoff=per_joint)
 
 

@@ -157,7 +157,7 @@ def carried_hessian(value, grad, lin_value, lin_grad, lin_hess):
     return r * np.asarray(lin_hess, float) + np.outer(g_r, g_lin) + np.outer(g_lin, g_r)
 
 
-def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
+def nonlinear_liftoff(ident, per_joint, derivs, start, stop, *, second: bool = True):
     """`liftoff_force_n`, and `per_joint` with each joint's entry on the nonlinear orbits:
     the force F* at which that joint's smallest contact deformation at the FRC peak
     reaches zero (secant from the linearised value), with dF*/dtheta = -m_theta / m_F
@@ -171,7 +171,8 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
     linearised value's (`carried_hessian`; `derivs`: `linear_liftoff`'s values, Jacobians
     and Hessians). Where a search fails the quantity has no value and no interval, and says
     why (`undetermined`). The two searches run on two threads (their programs are the same;
-    XLA runs them without Python's lock)."""
+    XLA runs them without Python's lock). `second=False`: the first joint's search alone,
+    the other joint left linearised (for studies of `liftoff_force_n`)."""
     from concurrent.futures import ThreadPoolExecutor
 
     first = int(np.argmin([q.value for q in per_joint]))
@@ -180,7 +181,8 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
     # The first joint's orbits open a few per cent below its linearised value (the pair
     # softens); the second joint's above it (the first has let go): secant starts either
     # side of where each was found on the worn drive.
-    starts = ((first, (0.9, 0.95)), (1 - first, (1.0, 1.05)))
+    starts = ((first, (0.9, 0.95)), (1 - first, (1.0, 1.05)))[:2 if second else 1]
+    found[1 - first] = None
     with ThreadPoolExecutor(max_workers=2) as pool:
         jobs = [(k, pool.submit(_joint_on_orbits, ident, k, per_joint[k], derivs, start,
                                 stop, f0 * per_joint[k].value, f1 * per_joint[k].value))
@@ -189,7 +191,9 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop):
             per[k], found[k] = job.result()
     joint = JOINTS[first]
     second = JOINTS[1 - first]
-    if found[first] is not None:
+    if not second:
+        per[1 - first].extra["note"] = "linearised (the search on the orbits was not asked for)"
+    elif found[first] is not None:
         note = (f"the {second} loses contact on orbits on which the {joint} has already "
                 f"lost contact (from {found[first]:.1f} N)")
         per[1 - first].extra["note"] = (per[1 - first].extra.get("note", "") + "; "
