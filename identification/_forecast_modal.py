@@ -13,29 +13,26 @@ import bsfs_jax
 from ._forecast import Identified, from_hessian, value_jac_hess
 
 
-@bsfs_jax.cached_jit
-def _modal_program(coords, theta):
-    """(value, Jacobian, Hessian) of [f1, zeta1, static stiffness]."""
+def _modal_values(coords, theta):
+    """[f1, zeta1, static stiffness] of the model at theta (traceable)."""
     import jax.numpy as jnp
 
-    def fn(th):
-        m = bsfs_jax.modes(bsfs_jax.build_system(coords.at(th)))
-        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
+    m = bsfs_jax.modes(bsfs_jax.build_system(coords.at(theta)))
+    return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
 
-    return value_jac_hess(fn, theta)
+
+@bsfs_jax.cached_jit
+def _modal_program(coords, theta):
+    """(value, Jacobian, Hessian) of `_modal_values`."""
+    return value_jac_hess(functools.partial(_modal_values, coords), theta)
 
 
 @bsfs_jax.cached_jit
 def _modal_at_draws(coords, thetas):
-    """(n, 3): [f1, zeta1, static stiffness] of the model at each row of `thetas`."""
+    """(n, 3): `_modal_values` at each row of `thetas`."""
     import jax
-    import jax.numpy as jnp
 
-    def fn(th):
-        m = bsfs_jax.modes(bsfs_jax.build_system(coords.at(th)))
-        return jnp.stack([m.frequencies_hz[0], m.damping_ratios[0], m.static_stiffness])
-
-    return jax.vmap(fn)(thetas)
+    return jax.vmap(functools.partial(_modal_values, coords))(thetas)
 
 
 DRAW_BATCH = 256  # draws pushed through the model per call (one program for any count)
@@ -72,5 +69,3 @@ def _modal(ident: Identified):
         out.append(from_hessian(name, unit, value[k], jac[k], hess[k], ident,
                                 scale=scale, exact=exact))
     return out, float(value[0])
-
-

@@ -125,14 +125,10 @@ def joint_min_deformation(params, force, hint, joint):
     from bsfs_jax.physics import contact_deformations
 
     ys, system = peak_orbit_samples(params, force, hint)
-    both = [jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel(),
-            jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()]
-    both = dict(zip(("bearing", "nut"), both))
-    if isinstance(joint, str):
-        deformations = both[joint]
-    else:
-        deformations = jnp.where(jnp.asarray(joint) == JOINTS.index("bearing"),
-                                 both["bearing"], both["nut"])
+    both = {"bearing": jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel(),
+            "nut": jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()}
+    deformations = both[joint] if isinstance(joint, str) else jnp.where(
+        jnp.asarray(joint) == JOINTS.index("bearing"), both["bearing"], both["nut"])
     # The smallest sample, chosen without gradient, then differentiated (the minimum over
     # the orbit is stationary in time, so this is its exact derivative). Not `jnp.min`:
     # the orbit's half-period symmetry makes one side's smallest sample bit-equal to the
@@ -176,13 +172,13 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop, *, second: bool = T
     from concurrent.futures import ThreadPoolExecutor
 
     first = int(np.argmin([q.value for q in per_joint]))
+    other = 1 - first
     per = list(per_joint)
-    found = {}
     # The first joint's orbits open a few per cent below its linearised value (the pair
     # softens); the second joint's above it (the first has let go): secant starts either
     # side of where each was found on the worn drive.
-    starts = ((first, (0.9, 0.95)), (1 - first, (1.0, 1.05)))[:2 if second else 1]
-    found[1 - first] = None
+    starts = ((first, (0.9, 0.95)), (other, (1.0, 1.05)))[:2 if second else 1]
+    found = {}
     with ThreadPoolExecutor(max_workers=2) as pool:
         jobs = [(k, pool.submit(_joint_on_orbits, ident, k, per_joint[k], derivs, start,
                                 stop, f0 * per_joint[k].value, f1 * per_joint[k].value))
@@ -190,14 +186,13 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop, *, second: bool = T
         for k, job in jobs:
             per[k], found[k] = job.result()
     joint = JOINTS[first]
-    second = JOINTS[1 - first]
     if not second:
-        per[1 - first].extra["note"] = "linearised (the search on the orbits was not asked for)"
+        per[other].extra["note"] = "linearised (the search on the orbits was not asked for)"
     elif found[first] is not None:
-        note = (f"the {second} loses contact on orbits on which the {joint} has already "
-                f"lost contact (from {found[first]:.1f} N)")
-        per[1 - first].extra["note"] = (per[1 - first].extra.get("note", "") + "; "
-                                        + note).lstrip("; ")
+        note = (f"the {JOINTS[other]} loses contact on orbits on which the {joint} has "
+                f"already lost contact (from {found[first]:.1f} N)")
+        per[other].extra["note"] = (per[other].extra.get("note", "") + "; "
+                                    + note).lstrip("; ")
     total = dataclasses.replace(per[first], name="liftoff_force_n", extra=dict(
         per[first].extra, joint=joint, per_joint={j: q.value for j, q in zip(JOINTS, per)}))
     return total, per

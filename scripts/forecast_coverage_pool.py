@@ -39,8 +39,15 @@ WHOLE = {  # replicates -> the whole forecast's rows
     "300-399": "forecast_coverage_100N_refits_floor_300_399.jsonl.gz",
 }
 LIFTOFF = {"0-199": "forecast_coverage_100N_liftoff_both_joints_0_199.jsonl.gz"}
-FRC = ("peak_frequency_hz", "peak_amplitude_um", "fold_up_hz", "fold_down_hz")
-LIFT = ("liftoff_force_n", "liftoff_force_bearing_n", "liftoff_force_nut_n")
+FRC = ("peak_frequency_hz", "peak_amplitude_um", "fold_up_hz", "fold_down_hz",
+       "liftoff_force_n", "liftoff_force_bearing_n")  # floored since session 11
+
+
+def contributes(sets: str, quantity: str) -> bool:
+    """Whether replicate set `sets` computed `quantity` as the current code does."""
+    if quantity == "liftoff_force_nut_n":
+        return sets in LIFTOFF
+    return not (quantity in FRC and sets == "200-299")
 
 
 def read(name: str) -> list[dict]:
@@ -56,17 +63,8 @@ def pooled() -> list[dict]:
         part = read(name)
         if sets in LIFTOFF:
             part = overlay(part, read(LIFTOFF[sets]))
-        for r in part:
-            keep = {}
-            for q, v in r["quantities"].items():
-                if q == "liftoff_force_nut_n" and sets not in LIFTOFF:
-                    continue
-                if q in LIFT and sets == "200-299":
-                    continue
-                if q in FRC and sets == "200-299":
-                    continue
-                keep[q] = v
-            rows.append(dict(r, quantities=keep))
+        rows += [dict(r, quantities={q: v for q, v in r["quantities"].items()
+                                     if contributes(sets, q)}) for r in part]
     return rows
 
 
