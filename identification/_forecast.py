@@ -302,8 +302,11 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
             extra["quadratic_ci95"] = [float(x) * scale for x in np.percentile(q, [2.5, 97.5])]
             quadratic = f"model at each draw, {ident.draws_kind or 'posterior draws'}"
             q = at
+            approximate = False  # the model itself: no approximate Hessian to guard
         else:
-            extra["exact_failed"] = "the model failed at a draw: quadratic model used"
+            failed = int(np.sum(~np.isfinite(at))) if at.shape == q.shape else len(q)
+            extra["exact_failed"] = (f"the model failed at {failed} of {len(q)} draws: "
+                                     "the quadratic model used")
     lo, median, hi = np.percentile(q, [2.5, 50.0, 97.5])
     extra.update(draws=len(delta), draws_std=float(np.std(q)) * scale,
                  plug_in=float(value) * scale)
@@ -326,49 +329,6 @@ def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
     forever inside XLA on the 2-core machine)."""
     return _checked(name, unit, value, np.asarray(grad, float), np.asarray(hess, float),
                     ident, scale, method, quadratic, dict(extra or {}), approximate, exact)
-
-
-def probe_steps(ident: Identified, k: int = 3) -> np.ndarray:
-    """(k, p): 1.96 sqrt(lambda_i) u_i along the covariance's k least determined directions
-    (largest eigenvalues): where the second-order terms of a quantity are largest."""
-    w, v = np.linalg.eigh(ident.covariance)
-    order = np.argsort(w)[::-1][:k]
-    return np.stack([Z95 * np.sqrt(max(w[i], 0.0)) * v[:, i] for i in order])
-
-
-def from_probes(name, unit, value, grad, ident: Identified, steps, at_plus, at_minus, *,
-                scale=1.0, method="delta") -> Quantity:
-    """A costly quantity (FRC peak, folds) with its exact gradient, checked at the probes
-    theta_hat +- steps[i] (`probe_steps`; `at_plus`/`at_minus`: q there, None where the
-    quantity does not exist there, e.g. a fold gone).
-
-    The second differences d_i = q(+) + q(-) - 2 q_hat give the quantity's curvature along
-    each probed direction, the Hessian H = sum_i d_i s_i s_i^T / |s_i|^4 restricted to
-    them, and `_checked` decides with it (method "quadratic (probed)" where doubtful).
-    Where the quantity vanishes at a probe (a fold appears or disappears inside the
-    interval), the side it moves to there is left open (method "probed: vanishes")."""
-    g = np.asarray(grad, float)
-    v = float(value)
-    gone = [(i, sgn) for i in range(len(steps))
-            for sgn, q in ((1.0, at_plus[i]), (-1.0, at_minus[i])) if q is None]
-    extra = dict(probes=len(steps))
-    if gone:
-        sd = _std(g, ident)
-        ci = [v - Z95 * sd, v + Z95 * sd]
-        for i, sgn in gone:
-            ci[1 if sgn * float(g @ steps[i]) >= 0 else 0] = None
-        extra["vanishes_at_probes"] = len(gone)
-        return _quantity(name, unit, v, ci, "probed: vanishes", g, ident, scale, extra)
-    d = np.array([at_plus[i] + at_minus[i] - 2 * v for i in range(len(steps))], float)
-    slope = np.array([(at_plus[i] - at_minus[i]) / 2 for i in range(len(steps))], float)
-    lin = steps @ g
-    sd = _std(g, ident)
-    extra["probe_slope_error"] = (float(np.max(np.abs(slope - lin)) / (Z95 * sd))
-                                  if sd > 0 else None)
-    norm2 = np.sum(steps**2, axis=1)
-    h = np.einsum("i,ij,ik->jk", d / norm2**2, steps, steps)
-    return _checked(name, unit, v, g, h, ident, scale, method, "quadratic (probed)", extra,
-                    approximate=True)
 
 
 def value_jac_hess(fn, x):

@@ -11,14 +11,9 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.design import OPENS_FRACTION  # the threshold of design.opens_joint
 
-from ._forecast import (
-    ForecastError,
-    Identified,
-    Quantity,
-    from_probes,
-    locate_peak,
-    probe_steps,
-)
+from ._forecast import ForecastError, Identified, Quantity, locate_peak
+from ._forecast_frc_checks import from_draws, from_probes, probe_steps
+from ._forecast_frc_draws import frc_exact
 from ._forecast_modal import _modal
 from ._liftoff import linear_liftoff, nonlinear_liftoff
 from ._parameters import require_x64
@@ -137,12 +132,21 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
                           for name, *_ in specs}
     out = []
     grads = _frc_gradients(ident.coordinates, theta, jnp.asarray(force, float), specs)
+    # With draws (refits, posterior) each point is followed to every draw, and the model
+    # itself there decides (`from_draws`); where it could not be followed at some draw,
+    # the probes decide and the quantity says at how many draws the model failed.
+    exact = frc_exact(ident, force, specs)
     for name, unit, scale, h in specs:
         value = _read(name, branch)
         grad = grads[name]
-        q = from_probes(name, unit, value, grad, ident, steps,
-                        [read[(i, 1.0)][name] for i in range(len(steps))],
-                        [read[(i, -1.0)][name] for i in range(len(steps))], scale=scale)
+        at = exact[name]() if name in exact else None
+        if at is not None and np.all(np.isfinite(at)):
+            q = from_draws(name, unit, value, grad, ident, at, scale=scale)
+        else:
+            q = from_probes(name, unit, value, grad, ident, steps,
+                            [read[(i, 1.0)][name] for i in range(len(steps))],
+                            [read[(i, -1.0)][name] for i in range(len(steps))], scale=scale,
+                            exact=exact.get(name))
         fold = {"fold_up_hz": up, "fold_down_hz": down}.get(name)
         if fold is not None:
             q.extra["amplitude_um"] = fold.amplitude * 1e6  # where the figure marks it

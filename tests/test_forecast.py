@@ -286,7 +286,7 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     # out) predicts the nonlinear lift-off's second difference along the least determined
     # direction, +-1.96 standard deviations, found by two more searches.
     from identification import forecast_liftoff
-    from identification._forecast import probe_steps
+    from identification._forecast_frc_checks import probe_steps
     from identification._liftoff import carried_hessian, linear_liftoff
 
     start, stop = data["band_hz"]
@@ -300,6 +300,45 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     second = sum(x.extra.get("plug_in", x.value) for x in at) - 2 * force
     assert second == pytest.approx(step @ h @ step, rel=0.1)
     assert abs(second) > 0.1 * q["std"]  # a curvature that matters
+
+
+def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders):
+    """The FRC's peak and folds at 100 N (folded, joints open: shooting), followed from
+    the estimate to other parameters by Newton on their extended systems (what the
+    forecast does at each refit), against the same points located afresh by continuation:
+    at two refits and at the damper c_b 20 % up (about 4 standard deviations). Where
+    c_b is 50 % up the folds are gone (the continuation finds none) and following them
+    fails instead of giving a value; the peak is still followed there."""
+    from bsfs_jax.design import point_hint
+    from identification._forecast_frc_draws import points_at_draws
+    from identification._forecast_run import _folds
+
+    ident_dir, _, _ = folders
+    ident = load_identified(ident_dir)
+    settings = OrbitSettings(frc_method="shooting")
+    band = (1040.0, 1140.0)
+    hint, branch = locate_frc_peak(ident.params_at(ident.theta), 100.0, settings,
+                                   start_hz=band[0], stop_hz=band[1])
+    up, down = _folds(branch)
+    assert up is not None and down is not None
+    hints = [hint, point_hint(up.point, branch), point_hint(down.point, branch)]
+    i = list(ident.names).index("c_b")
+    thetas = [ident.draws[0], ident.draws[1]] + [ident.theta + np.log(f) * np.eye(5)[i]
+                                                 for f in (1.2, 1.5)]
+    out = points_at_draws(dataclasses.replace(ident, draws=np.array(thetas)), 100.0, hints,
+                          [True, False, False])
+    for k, theta in enumerate(thetas):
+        _, fresh = locate_frc_peak(ident.params_at(theta), 100.0, settings,
+                                   start_hz=band[0], stop_hz=band[1])
+        assert out[0, k, 1] == pytest.approx(fresh.peak.p, abs=2e-4)
+        assert out[0, k, 0] == pytest.approx(fresh.peak.amplitude, rel=1e-8)
+        folds = [b.p for b in fresh.bifurcations if b.kind == "fold"]
+        if k < 3:
+            assert len(folds) == 2
+            np.testing.assert_allclose(out[1:, k, 1], folds, atol=1e-4)
+        else:
+            assert not folds and np.all(np.isnan(out[1:, k]))
+    assert abs(out[0, 2, 1] - branch.peak.p) > 2.0  # far from the estimate's peak
 
 
 def test_second_joints_liftoff_is_found_on_orbits_where_the_first_has_opened(folders):

@@ -24,6 +24,8 @@ if TYPE_CHECKING:
     from ._crosscheck import PAPER_TRENDS as PAPER_TRENDS
     from ._crosscheck import crosscheck_markdown as crosscheck_markdown
     from ._crosscheck import paper_crosscheck as paper_crosscheck
+    from ._frc_follow import follow_point as follow_point
+    from ._frc_follow import follow_start as follow_start
     from ._gradcheck import FD_TOLERANCE as FD_TOLERANCE
     from ._gradcheck import check_gradient as check_gradient
     from ._gradcheck import compare_gradients as compare_gradients
@@ -86,6 +88,8 @@ _LAZY = {
     "optimization_start": "._optimize",
     "optimize": "._optimize",
     "verify_by_simulation": "._optimize",
+    "follow_point": "._frc_follow",
+    "follow_start": "._frc_follow",
     "OPENS_FRACTION": "._orbit",
     "OrbitSettings": "._orbit",
     "PeakHint": "._orbit",

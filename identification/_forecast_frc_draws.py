@@ -1,0 +1,91 @@
+"""The FRC's peak and folds by the model itself at each of the identification's draws.
+
+Where the delta method is doubtful for an FRC quantity and the identification saved
+draws (bootstrap refits or posterior draws), each located point of the estimate's branch
+(the peak, each fold) is followed to every draw by Newton on its extended system
+(`bsfs_jax.design.follow_point`), all draws and points in one vmapped program; the
+2.5-97.5 % range of the values is the interval (`_forecast._checked`, method "model at
+each draw"). A draw at which a point cannot be followed (a fold gone, a Newton failure)
+is not given a value: the quantity then keeps the probed quadratic model and says at how
+many draws the model failed.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+import bsfs_jax
+
+from ._forecast import Identified
+
+DRAW_BATCH = 256  # at most this many draws per call (larger counts: several calls)
+BATCH_ROUND = 8
+
+
+@bsfs_jax.cached_jit
+def _points_at_draws(coords, theta, thetas, force, hints, weights):
+    """(k, n, 3): (nut amplitude [m], frequency [Hz], converged) of each of the k stacked
+    located points `hints` (`weights`: 1 the peak, 0 a fold) at each row of `thetas`,
+    followed from the estimate `theta`."""
+    import jax
+    import jax.numpy as jnp
+
+    from bsfs_jax.design import follow_point, follow_start
+
+    params = coords.at(theta)
+
+    def one(hint, weight):
+        start = follow_start(params, force, hint, weight)
+
+        def lane(th):
+            amp, freq, ok = follow_point(coords.at(th), force, hint, weight, start)
+            return jnp.stack([amp, freq, ok.astype(float)])
+
+        return jax.vmap(lane)(thetas)
+
+    return jax.vmap(one)(hints, weights)
+
+
+def points_at_draws(ident: Identified, force: float, hints, peak) -> np.ndarray:
+    """(k, n, 2): (nut amplitude [m], frequency [Hz]) of each located point `hints[i]`
+    (`peak[i]`: the FRC peak, else a fold) followed to each of the n draws; NaN where it
+    could not be followed."""
+    import jax
+    import jax.numpy as jnp
+
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *hints)
+    weights = jnp.asarray([1.0 if p else 0.0 for p in peak])
+    n = len(ident.draws)
+    # batches of at most DRAW_BATCH draws, padded with the estimate to a multiple of
+    # BATCH_ROUND: 200 refits run as 200 lanes, not 256 (each lane costs its integrations)
+    batch = min(DRAW_BATCH, -(-n // BATCH_ROUND) * BATCH_ROUND)
+    thetas = np.concatenate([ident.draws, np.repeat(ident.theta[None], -n % batch, axis=0)])
+    theta = jnp.asarray(ident.theta, float)
+    out = np.concatenate([np.asarray(_points_at_draws(
+        ident.coordinates, theta, jnp.asarray(thetas[i:i + batch], float),
+        jnp.asarray(force, float), stacked, weights))
+        for i in range(0, len(thetas), batch)], axis=1)[:, :n]
+    return np.where(out[:, :, 2:] > 0.5, out[:, :, :2], np.nan)
+
+
+def frc_exact(ident: Identified, force: float, specs) -> dict:
+    """{name: callable returning the quantity at each draw (m, Hz: before the
+    quantity's `scale`)} for the FRC quantities `specs` ((name, unit, scale, hint) each; the peak's
+    two share its hint), for `_checked`'s `exact`; every point is followed in one batch,
+    on the first call. {} where the identification has no draws."""
+    if ident.draws is None:
+        return {}
+    hints, peak, where = [], [], {}
+    for name, _, _, hint in specs:
+        is_peak = name in ("peak_frequency_hz", "peak_amplitude_um")
+        column = 0 if name == "peak_amplitude_um" else 1
+        if is_peak and True in peak:
+            where[name] = (peak.index(True), column)
+            continue
+        where[name] = (len(hints), column)
+        hints.append(hint)
+        peak.append(is_peak)
+    batch = functools.cache(lambda: points_at_draws(ident, force, hints, peak))
+    return {name: (lambda k=k, c=c: batch()[k, :, c]) for name, (k, c) in where.items()}
