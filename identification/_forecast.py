@@ -17,6 +17,12 @@ Each forecast quantity q(theta) is a differentiable function of theta through th
   quadratic model (exact Hessian) for a cheap quantity, of the probed quadratic model for
   a costly one.
   Where a fold appears or disappears at a probe, that side of its interval is left open.
+- **the model at each draw**: where the identification saved draws (bootstrap refits,
+  posterior draws), the modal quantities are evaluated at each draw where their delta
+  method is doubtful (`_forecast_modal.py`), and the FRC's peak and folds are followed to
+  every draw (`_forecast_frc_draws.py`); for these the draws themselves measure the
+  linear model's error and decide (`_forecast_frc_checks.from_draws`), the probes serving
+  only where a point could not be followed at some draw.
 
 `dominated_by`: the fitted parameter whose own variance contributes most, g_i^2 C_ii.
 """

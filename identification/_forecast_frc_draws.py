@@ -1,13 +1,13 @@
 """The FRC's peak and folds by the model itself at each of the identification's draws.
 
-Where the delta method is doubtful for an FRC quantity and the identification saved
-draws (bootstrap refits or posterior draws), each located point of the estimate's branch
-(the peak, each fold) is followed to every draw by Newton on its extended system
-(`bsfs_jax.design.follow_point`), all draws and points in one vmapped program; the
-2.5-97.5 % range of the values is the interval (`_forecast._checked`, method "model at
-each draw"). A draw at which a point cannot be followed (a fold gone, a Newton failure)
-is not given a value: the quantity then keeps the probed quadratic model and says at how
-many draws the model failed.
+Where the identification saved draws (bootstrap refits or posterior draws), each located
+point of the estimate's branch (the peak, each fold) is followed to every draw by Newton
+on its extended system (`bsfs_jax.design.follow_point`), all draws and points in one
+vmapped program. The values decide the interval (`_forecast_frc_checks.from_draws`: the
+linear model's error measured over the draws; where it is large, their 2.5-97.5 % range,
+method "model at each draw"). A draw at which a point cannot be followed (a fold gone, a
+Newton failure) is given NaN, not a value: the quantity then falls back to the probes'
+quadratic model and says at how many draws the model failed.
 """
 
 from __future__ import annotations
@@ -48,33 +48,39 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
     return jax.vmap(one)(hints, weights)
 
 
-def points_at_draws(ident: Identified, force: float, hints, peak) -> np.ndarray:
-    """(k, n, 2): (nut amplitude [m], frequency [Hz]) of each located point `hints[i]`
-    (`peak[i]`: the FRC peak, else a fold) followed to each of the n draws; NaN where it
-    could not be followed."""
+def _calls(ident: Identified, force: float, hints, peak) -> list:
+    """The arguments of `_points_at_draws` for each batch of the draws: at most
+    DRAW_BATCH draws, padded with the estimate to a multiple of BATCH_ROUND (200 refits
+    run as 200 lanes, not 256: each lane costs its integrations)."""
     import jax
     import jax.numpy as jnp
 
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *hints)
     weights = jnp.asarray([1.0 if p else 0.0 for p in peak])
     n = len(ident.draws)
-    # batches of at most DRAW_BATCH draws, padded with the estimate to a multiple of
-    # BATCH_ROUND: 200 refits run as 200 lanes, not 256 (each lane costs its integrations)
     batch = min(DRAW_BATCH, -(-n // BATCH_ROUND) * BATCH_ROUND)
     thetas = np.concatenate([ident.draws, np.repeat(ident.theta[None], -n % batch, axis=0)])
-    theta = jnp.asarray(ident.theta, float)
-    out = np.concatenate([np.asarray(_points_at_draws(
-        ident.coordinates, theta, jnp.asarray(thetas[i:i + batch], float),
-        jnp.asarray(force, float), stacked, weights))
-        for i in range(0, len(thetas), batch)], axis=1)[:, :n]
+    theta, force = jnp.asarray(ident.theta, float), jnp.asarray(force, float)
+    return [(ident.coordinates, theta, jnp.asarray(thetas[i:i + batch], float), force,
+             stacked, weights) for i in range(0, len(thetas), batch)]
+
+
+def points_at_draws(ident: Identified, force: float, hints, peak) -> np.ndarray:
+    """(k, n, 2): (nut amplitude [m], frequency [Hz]) of each located point `hints[i]`
+    (`peak[i]`: the FRC peak, else a fold) followed to each of the n draws; NaN where it
+    could not be followed."""
+    out = np.concatenate([np.asarray(_points_at_draws(*args))
+                          for args in _calls(ident, force, hints, peak)],
+                         axis=1)[:, :len(ident.draws)]
     return np.where(out[:, :, 2:] > 0.5, out[:, :, :2], np.nan)
 
 
 def frc_exact(ident: Identified, force: float, specs) -> dict:
-    """{name: callable returning the quantity at each draw (m, Hz: before the
-    quantity's `scale`)} for the FRC quantities `specs` ((name, unit, scale, hint) each; the peak's
+    """{name: callable returning the quantity at each draw (m, Hz: before the quantity's
+    `scale`)} for the FRC quantities `specs` ((name, unit, scale, hint) each; the peak's
     two share its hint), for `_checked`'s `exact`; every point is followed in one batch,
-    on the first call. {} where the identification has no draws."""
+    on the first call, whose program starts compiling now on the background thread (the
+    probes' continuations run meanwhile). {} where the identification has no draws."""
     if ident.draws is None:
         return {}
     hints, peak, where = [], [], {}
@@ -87,5 +93,6 @@ def frc_exact(ident: Identified, force: float, specs) -> dict:
         where[name] = (len(hints), column)
         hints.append(hint)
         peak.append(is_peak)
+    _points_at_draws.prefetch_now(*_calls(ident, force, hints, peak)[0])
     batch = functools.cache(lambda: points_at_draws(ident, force, hints, peak))
     return {name: (lambda k=k, c=c: batch()[k, :, c]) for name, (k, c) in where.items()}

@@ -123,6 +123,11 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     marks = [float(h.frequency_hz) for *_, h in specs]
     width = MARGIN_HALF_WIDTHS * max(marks) * damping_ratio
     sub = (max(start, min(marks) - width), min(stop, max(marks) + width))
+    # With draws (refits, posterior) each point is followed to every draw, and the model
+    # itself there decides (`from_draws`); where it could not be followed at some draw,
+    # the probes decide and the quantity says at how many draws the model failed. The
+    # probes' FRCs are also the figure's band.
+    exact = frc_exact(ident, force, specs)
     steps = probe_steps(ident, min(PROBES, len(ident.names)))
     curves, read = {"estimate": branch}, {}
     jobs = [(i, sgn) for i in range(len(steps)) for sgn in (1.0, -1.0)]
@@ -132,10 +137,6 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
                           for name, *_ in specs}
     out = []
     grads = _frc_gradients(ident.coordinates, theta, jnp.asarray(force, float), specs)
-    # With draws (refits, posterior) each point is followed to every draw, and the model
-    # itself there decides (`from_draws`); where it could not be followed at some draw,
-    # the probes decide and the quantity says at how many draws the model failed.
-    exact = frc_exact(ident, force, specs)
     for name, unit, scale, h in specs:
         value = _read(name, branch)
         grad = grads[name]

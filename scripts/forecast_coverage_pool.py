@@ -1,5 +1,5 @@
 """The forecast's coverage pooled over every replicate set run with the same interval
-method (issue 20, item 3; docs/COVERAGE.md, section "Session 12").
+method (issue 20, item 3; docs/COVERAGE.md, sections "Session 12" and "Session 13").
 
 The coverage rows in docs/data come from runs of `scripts/forecast_coverage.py` at
 different commits. A quantity is pooled only over the sets whose code computed it the
@@ -12,7 +12,10 @@ same way:
   pass `--part liftoff` at the commit named in COVERAGE.md) and 300-399 (its search then
   started at 16 harmonics instead of 32 and stopped on the deformation alone: the same
   force to about 0.01 N, against a std of 0.26 N);
-- the second joint's (`liftoff_force_nut_n`, on the orbits since session 12): 0-199.
+- the second joint's (`liftoff_force_nut_n`, on the orbits since session 12): 0-199;
+- the FRC's peak and folds (the model itself at each refit since session 13, section
+  "Session 13"): replicates 0-99 run again at that commit. That set repeats seeds of
+  0-199, so it contributes those four quantities only, and 0-199 no longer does.
 
     python scripts/forecast_coverage_pool.py            # the table (Markdown) on stdout
 
@@ -37,14 +40,20 @@ WHOLE = {  # replicates -> the whole forecast's rows
     "0-199": "forecast_coverage_100N_refits_floor_0_199.jsonl.gz",
     "200-299": "forecast_coverage_100N_refits_200_299.jsonl.gz",
     "300-399": "forecast_coverage_100N_refits_floor_300_399.jsonl.gz",
+    "0-99 followed": "forecast_coverage_100N_followed_0_99.jsonl.gz",
 }
 LIFTOFF = {"0-199": "forecast_coverage_100N_liftoff_both_joints_0_199.jsonl.gz"}
 FRC = ("peak_frequency_hz", "peak_amplitude_um", "fold_up_hz", "fold_down_hz",
        "liftoff_force_n", "liftoff_force_bearing_n")  # floored since session 11
+FOLLOWED = FRC[:4]  # the model at each refit since session 13
 
 
 def contributes(sets: str, quantity: str) -> bool:
     """Whether replicate set `sets` computed `quantity` as the current code does."""
+    if quantity in FOLLOWED:
+        return sets == "0-99 followed"
+    if sets == "0-99 followed":  # its seeds repeat 0-199's
+        return False
     if quantity == "liftoff_force_nut_n":
         return sets in LIFTOFF
     return not (quantity in FRC and sets == "200-299")

@@ -339,6 +339,25 @@ def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders)
         else:
             assert not folds and np.all(np.isnan(out[1:, k]))
     assert abs(out[0, 2, 1] - branch.peak.p) > 2.0  # far from the estimate's peak
+    # The draws decide: a quantity linear in theta keeps the delta interval; one whose
+    # second-order term is a third of the linear spread gets the draws' range.
+    from identification._forecast_frc_checks import from_draws
+
+    g = np.array([0.0, 0.0, 2.0, -1.0, 0.5])
+    delta = ident.draws - ident.theta
+    linear = from_draws("q", "Hz", 1000.0, g, ident, 1000.0 + delta @ g)
+    sd = float(np.sqrt(g @ ident.covariance @ g))
+    assert linear.method == "delta" and linear.extra["second_order"] < 1e-12
+    assert linear.ci95 == pytest.approx([1000.0 - 1.959964 * sd, 1000.0 + 1.959964 * sd])
+    curved = 1000.0 + delta @ g + 0.3 * np.std(delta @ g) * ((delta @ g) / sd) ** 2
+    bent = from_draws("q", "Hz", 1000.0, g, ident, curved)
+    assert bent.method == "model at each draw, bootstrap refits"
+    assert bent.extra["draws_ci95"] == pytest.approx(list(np.percentile(curved, [2.5, 97.5])))
+    assert bent.value == pytest.approx(float(np.median(curved)))
+    # each side at least the delta half-width from the value (the refits' floor)
+    lo, hi = np.percentile(curved, [2.5, 97.5])
+    assert bent.ci95 == pytest.approx([min(lo, bent.value - 1.959964 * sd),
+                                       max(hi, bent.value + 1.959964 * sd)])
 
 
 def test_second_joints_liftoff_is_found_on_orbits_where_the_first_has_opened(folders):

@@ -64,12 +64,13 @@ def _system(params, force_n, hint, peak_weight, amplitude_ref):
     t_star = jax.lax.stop_gradient(hint.tangent)
 
     def extended(x):
+        """(E(x), the nut amplitude at x's orbit)."""
         n = x.shape[0] // 2
         v, t = x[:n], x[n:]
         r, r_t = jax.jvp(residual, (v,), (t,))
-        a_t = jax.jvp(amplitude, (v,), (t,))[1] / amplitude_ref
-        rate = peak_weight * a_t + (1.0 - peak_weight) * t[-1]
-        return jnp.concatenate([r, r_t, jnp.dot(t_star, t)[None] - 1.0, rate[None]])
+        a, a_t = jax.jvp(amplitude, (v,), (t,))
+        rate = peak_weight * a_t / amplitude_ref + (1.0 - peak_weight) * t[-1]
+        return jnp.concatenate([r, r_t, jnp.dot(t_star, t)[None] - 1.0, rate[None]]), a
 
     return extended, amplitude
 
@@ -88,7 +89,7 @@ def follow_start(params, force_n, hint, peak_weight):
                                       hint.p_scale, 1, v_star, dfx.ForwardMode())[2]
     extended, _ = _system(params, force_n, hint, peak_weight, amplitude_ref)
     x0 = jnp.concatenate([v_star, t0])
-    lu, piv = jax.scipy.linalg.lu_factor(jax.jacfwd(extended)(x0))
+    lu, piv = jax.scipy.linalg.lu_factor(jax.jacfwd(lambda x: extended(x)[0])(x0))
     return x0, lu, piv, amplitude_ref
 
 
@@ -100,24 +101,38 @@ def follow_point(params, force_n, hint, peak_weight, start):
     x0, lu, piv, amplitude_ref = start
     extended, amplitude = _system(params, force_n, hint, peak_weight, amplitude_ref)
     n = x0.shape[0] // 2
+    # a step's largest move of the point for it to count as converged; a fold's
+    # amplitude is not its quantity (and moves along the fold's null direction)
+    step_tol = FOLLOW_STEP_TOL / jnp.stack([1.0, peak_weight])
 
-    def point(x):  # (frequency, amplitude) relative to the located point's
-        return jnp.stack([x[n - 1] / x0[n - 1], amplitude(x[:n]) / amplitude_ref])
+    # The loop carries x, its (frequency, amplitude) relative to the located point's and
+    # E(x): each pass tests the point it holds (E small, and the step that led there
+    # moved it by less than FOLLOW_STEP_TOL) before stepping on, so E's own pass
+    # gives the amplitude (no third integration per step).
+    def measured(x):
+        e, a = extended(x)
+        return e, jnp.stack([x[n - 1] / x0[n - 1], a / amplitude_ref])
+
+    def converged(e, q, q_before, x):
+        a = jnp.abs(e)
+        return (jnp.all(jnp.abs(q - q_before) <= step_tol)
+                & (jnp.max(a[:n - 1]) <= FOLLOW_RESIDUAL_TOL)
+                & (jnp.max(a[n - 1:]) <= FOLLOW_EXTENDED_TOL) & jnp.all(jnp.isfinite(x)))
 
     def cond(carry):
-        k, _, _, done = carry
-        return (k < FOLLOW_MAX_STEPS) & ~done
+        k, x, e, q, q_before = carry
+        return (k < FOLLOW_MAX_STEPS) & ~converged(e, q, q_before, x)
 
     def body(carry):
-        k, x, q, _ = carry
-        e = extended(x)
-        x = x - jax.scipy.linalg.lu_solve((lu, piv), e)
-        q_new = point(x)
-        step = jnp.max(jnp.abs(q_new - q) * jnp.stack([1.0, peak_weight]))
-        a = jnp.abs(e)
-        done = ((step <= FOLLOW_STEP_TOL) & (jnp.max(a[:n - 1]) <= FOLLOW_RESIDUAL_TOL)
-                & (jnp.max(a[n - 1:]) <= FOLLOW_EXTENDED_TOL) & jnp.all(jnp.isfinite(x)))
-        return k + 1, x, q_new, done
+        k, x, e, q, _ = carry
+        x_new = x - jax.scipy.linalg.lu_solve((lu, piv), e)
+        e_new, q_new = measured(x_new)
+        return k + 1, x_new, e_new, q_new, q
 
-    _, x, q, ok = jax.lax.while_loop(cond, body, (0, x0, point(x0), False))
-    return q[1] * amplitude_ref, x[n - 1] * hint.p_scale, ok
+    e0, q0 = measured(x0)
+    _, x, e, q, q_before = jax.lax.while_loop(cond, body, (0, x0, e0, q0, q0 + jnp.inf))
+    # the values one step further (E at x is known): the test above bounds the last
+    # step's move, this step's is smaller again
+    x_last = x - jax.scipy.linalg.lu_solve((lu, piv), e)
+    return (amplitude(x_last[:n]), x_last[n - 1] * hint.p_scale,
+            converged(e, q, q_before, x) & jnp.all(jnp.isfinite(x_last)))
