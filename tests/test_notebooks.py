@@ -15,7 +15,7 @@ def test_notebook_runs(path, monkeypatch):
         # The kernel shares the compilation cache of the test run (CI): jax reads these
         # at its import. Programs that other tests or notebooks compiled are loaded.
         monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ["BSFS_CACHE_DIR"])
-        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     nb = nbformat.read(path, as_version=4)
