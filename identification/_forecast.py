@@ -308,7 +308,6 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
             extra["quadratic_ci95"] = [float(x) * scale for x in np.percentile(q, [2.5, 97.5])]
             quadratic = f"model at each draw, {ident.draws_kind or 'posterior draws'}"
             q = at
-            approximate = False  # the model itself: no approximate Hessian to guard
         else:
             failed = int(np.sum(~np.isfinite(at))) if at.shape == q.shape else len(q)
             extra["exact_failed"] = (f"the model failed at {failed} of {len(q)} draws: "
@@ -317,13 +316,19 @@ def _checked(name, unit, value, g, h, ident, scale, method, quadratic, extra,
     extra.update(draws=len(delta), draws_std=float(np.std(q)) * scale,
                  plug_in=float(value) * scale)
     if approximate:
-        floor = (median - Z95 * sd, median + Z95 * sd)
-        sides = [side for side, moved in (("low", floor[0] < lo), ("high", floor[1] > hi))
-                 if moved]
-        lo, hi = min(lo, floor[0]), max(hi, floor[1])
-        extra["floor"] = ("delta half-width on the " + " and ".join(sides) + " side"
-                          if sides else None)
+        lo, hi = floored(lo, median, hi, sd, extra)
     return _quantity(name, unit, median, [lo, hi], quadratic, g, ident, scale, extra)
+
+
+def floored(lo, value, hi, sd, extra):
+    """(lo, hi) with each side at least the delta half-width Z95 sd from `value`;
+    `extra["floor"]` says on which sides that applied."""
+    floor = (value - Z95 * sd, value + Z95 * sd)
+    sides = [side for side, moved in (("low", floor[0] < lo), ("high", floor[1] > hi))
+             if moved]
+    extra["floor"] = ("delta half-width on the " + " and ".join(sides) + " side"
+                      if sides else None)
+    return min(lo, floor[0]), max(hi, floor[1])
 
 
 def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,

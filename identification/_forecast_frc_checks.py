@@ -7,7 +7,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._forecast import SECOND_ORDER_TOL, Z95, Identified, Quantity, _checked, _quantity, _std
+from ._forecast import (
+    SECOND_ORDER_TOL,
+    Z95,
+    Identified,
+    Quantity,
+    _checked,
+    _quantity,
+    _std,
+    floored,
+)
 
 
 def from_draws(name, unit, value, grad, ident: Identified, at, *, scale=1.0,
@@ -39,13 +48,7 @@ def from_draws(name, unit, value, grad, ident: Identified, at, *, scale=1.0,
     lo, median, hi = np.percentile(at, [2.5, 50.0, 97.5])
     extra.update(draws=len(at), draws_std=float(np.std(at)) * scale, plug_in=v * scale,
                  draws_ci95=[float(lo) * scale, float(hi) * scale])
-    sd = _std(g, ident)
-    floor = (median - Z95 * sd, median + Z95 * sd)
-    sides = [side for side, moved in (("low", floor[0] < lo), ("high", floor[1] > hi))
-             if moved]
-    lo, hi = min(lo, floor[0]), max(hi, floor[1])
-    extra["floor"] = ("delta half-width on the " + " and ".join(sides) + " side"
-                      if sides else None)
+    lo, hi = floored(lo, median, hi, _std(g, ident), extra)
     return _quantity(name, unit, median, [lo, hi],
                      f"model at each draw, {ident.draws_kind or 'posterior draws'}", g, ident,
                      scale, extra)

@@ -65,12 +65,12 @@ def _calls(ident: Identified, force: float, hints, peak) -> list:
              stacked, weights) for i in range(0, len(thetas), batch)]
 
 
-def points_at_draws(ident: Identified, force: float, hints, peak) -> np.ndarray:
+def points_at_draws(ident: Identified, force: float, hints, peak, calls=None) -> np.ndarray:
     """(k, n, 2): (nut amplitude [m], frequency [Hz]) of each located point `hints[i]`
     (`peak[i]`: the FRC peak, else a fold) followed to each of the n draws; NaN where it
-    could not be followed."""
-    out = np.concatenate([np.asarray(_points_at_draws(*args))
-                          for args in _calls(ident, force, hints, peak)],
+    could not be followed. `calls`: `_calls`'s arguments, where already laid out."""
+    calls = _calls(ident, force, hints, peak) if calls is None else calls
+    out = np.concatenate([np.asarray(_points_at_draws(*args)) for args in calls],
                          axis=1)[:, :len(ident.draws)]
     return np.where(out[:, :, 2:] > 0.5, out[:, :, :2], np.nan)
 
@@ -93,6 +93,7 @@ def frc_exact(ident: Identified, force: float, specs) -> dict:
         where[name] = (len(hints), column)
         hints.append(hint)
         peak.append(is_peak)
-    _points_at_draws.prefetch_now(*_calls(ident, force, hints, peak)[0])
-    batch = functools.cache(lambda: points_at_draws(ident, force, hints, peak))
+    calls = _calls(ident, force, hints, peak)
+    _points_at_draws.prefetch_now(*calls[0])
+    batch = functools.cache(lambda: points_at_draws(ident, force, hints, peak, calls))
     return {name: (lambda k=k, c=c: batch()[k, :, c]) for name, (k, c) in where.items()}

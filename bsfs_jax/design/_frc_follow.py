@@ -47,9 +47,9 @@ FOLLOW_RESIDUAL_TOL = 1e-6
 FOLLOW_EXTENDED_TOL = 1e-5
 
 
-def _system(params, force_n, hint, peak_weight, amplitude_ref):
-    """E(x) of the module docstring at `params`; `peak_weight` 1: the peak, 0: a fold
-    (traced, so that the peak and the folds share one program)."""
+def _functions(params, force_n, hint):
+    """(R(v), A(v)): the hint's orbit residual and the nut amplitude at `params` (the
+    model built once, `BSFSFamily.prepare`), forward-mode through the ODE solves."""
     family = BSFSFamily(params, hint.frequency_hz, force_n).prepare()
     ode = dfx.ForwardMode()
 
@@ -61,6 +61,13 @@ def _system(params, force_n, hint, peak_weight, amplitude_ref):
         return family_amplitudes(family, vector_field, hint.method, hint.scale,
                                  hint.p_scale, 1, v, ode)[2]
 
+    return residual, amplitude
+
+
+def _system(functions, hint, peak_weight, amplitude_ref):
+    """E(x) of the module docstring, with the amplitude at x's orbit; `peak_weight` 1:
+    the peak, 0: a fold (traced, so that the peak and the folds share one program)."""
+    residual, amplitude = functions
     t_star = jax.lax.stop_gradient(hint.tangent)
 
     def extended(x):
@@ -72,22 +79,21 @@ def _system(params, force_n, hint, peak_weight, amplitude_ref):
         rate = peak_weight * a_t / amplitude_ref + (1.0 - peak_weight) * t[-1]
         return jnp.concatenate([r, r_t, jnp.dot(t_star, t)[None] - 1.0, rate[None]]), a
 
-    return extended, amplitude
+    return extended
 
 
 def follow_start(params, force_n, hint, peak_weight):
     """(x0, lu, piv, amplitude_ref) at the located point: x0 = (v*, t0) with t0 the
     tangent of R_v at v* scaled to t* . t0 = 1, and E's Jacobian there, factored."""
-    family = BSFSFamily(params, hint.frequency_hz, force_n).prepare()
+    functions = _functions(params, force_n, hint)
+    residual, amplitude = functions
     v_star = jax.lax.stop_gradient(hint.v)
     t_star = jax.lax.stop_gradient(hint.tangent)
-    r_v = jax.jacfwd(lambda v: family_residual(family, vector_field, hint.method, hint.scale,
-                                               hint.p_scale, 1, v, dfx.ForwardMode()))(v_star)
     e_last = jnp.zeros(v_star.shape[0]).at[-1].set(1.0)
-    t0 = jnp.linalg.solve(jnp.concatenate([r_v, t_star[None]]), e_last)
-    amplitude_ref = family_amplitudes(family, vector_field, hint.method, hint.scale,
-                                      hint.p_scale, 1, v_star, dfx.ForwardMode())[2]
-    extended, _ = _system(params, force_n, hint, peak_weight, amplitude_ref)
+    t0 = jnp.linalg.solve(jnp.concatenate([jax.jacfwd(residual)(v_star), t_star[None]]),
+                          e_last)
+    amplitude_ref = amplitude(v_star)
+    extended = _system(functions, hint, peak_weight, amplitude_ref)
     x0 = jnp.concatenate([v_star, t0])
     lu, piv = jax.scipy.linalg.lu_factor(jax.jacfwd(lambda x: extended(x)[0])(x0))
     return x0, lu, piv, amplitude_ref
@@ -99,7 +105,9 @@ def follow_point(params, force_n, hint, peak_weight, start):
     and vmappable over `params`; a lane that does not converge in `FOLLOW_MAX_STEPS`
     steps, or whose residual stays above `FOLLOW_RESIDUAL_TOL`, says so."""
     x0, lu, piv, amplitude_ref = start
-    extended, amplitude = _system(params, force_n, hint, peak_weight, amplitude_ref)
+    functions = _functions(params, force_n, hint)
+    extended = _system(functions, hint, peak_weight, amplitude_ref)
+    amplitude = functions[1]
     n = x0.shape[0] // 2
     # a step's largest move of the point for it to count as converged; a fold's
     # amplitude is not its quantity (and moves along the fold's null direction)
