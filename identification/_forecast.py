@@ -22,7 +22,9 @@ Each forecast quantity q(theta) is a differentiable function of theta through th
   method is doubtful (`_forecast_modal.py`), and the FRC's peak and folds are followed to
   every draw (`_forecast_frc_draws.py`); for these the draws themselves measure the
   linear model's error and decide (`_forecast_frc_checks.from_draws`), the probes serving
-  only where a point could not be followed at some draw.
+  only where a point could not be followed at some draw. The lift-off force of the joint
+  that opens first (`liftoff_force_n`) is searched at each draw where its quadratic model
+  is doubtful (`_liftoff_draws.py`: the FRC peak followed, a secant in the force).
 
 `dominated_by`: the fitted parameter whose own variance contributes most, g_i^2 C_ii.
 """
@@ -38,6 +40,7 @@ import numpy as np
 
 Z95 = 1.959963984540054
 SECOND_ORDER_TOL = 0.1  # second-order std / linear std beyond which the delta is doubtful
+DRAW_BATCH = 256  # at most this many draws per call of a program over the draws
 DRAWS = 4000
 DRAW_SEED = 0
 
@@ -340,6 +343,17 @@ def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
     forever inside XLA on the 2-core machine)."""
     return _checked(name, unit, value, np.asarray(grad, float), np.asarray(hess, float),
                     ident, scale, method, quadratic, dict(extra or {}), approximate, exact)
+
+
+def draw_batches(ident: Identified, round_to: int = DRAW_BATCH) -> list:
+    """The identification's draws in batches of at most `DRAW_BATCH` rows for the
+    vmapped programs that push them through the model, the last padded with the estimate
+    to a multiple of `round_to`: `DRAW_BATCH` for cheap lanes (one program for any count
+    of draws), a small number for costly ones (200 refits run as 200 lanes, not 256)."""
+    n = len(ident.draws)
+    batch = min(DRAW_BATCH, -(-n // round_to) * round_to)
+    thetas = np.concatenate([ident.draws, np.repeat(ident.theta[None], -n % batch, axis=0)])
+    return [thetas[i:i + batch] for i in range(0, len(thetas), batch)]
 
 
 def value_jac_hess(fn, x):

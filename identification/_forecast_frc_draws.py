@@ -18,10 +18,9 @@ import numpy as np
 
 import bsfs_jax
 
-from ._forecast import Identified
+from ._forecast import Identified, draw_batches
 
-DRAW_BATCH = 256  # at most this many draws per call (larger counts: several calls)
-BATCH_ROUND = 8
+BATCH_ROUND = 8  # the last batch of draws padded to a multiple of this (`draw_batches`)
 
 
 @bsfs_jax.cached_jit
@@ -49,20 +48,16 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
 
 
 def _calls(ident: Identified, force: float, hints, peak) -> list:
-    """The arguments of `_points_at_draws` for each batch of the draws: at most
-    DRAW_BATCH draws, padded with the estimate to a multiple of BATCH_ROUND (200 refits
-    run as 200 lanes, not 256: each lane costs its integrations)."""
+    """The arguments of `_points_at_draws` for each batch of the draws (`draw_batches`,
+    padded to a multiple of BATCH_ROUND: each lane costs its integrations)."""
     import jax
     import jax.numpy as jnp
 
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *hints)
     weights = jnp.asarray([1.0 if p else 0.0 for p in peak])
-    n = len(ident.draws)
-    batch = min(DRAW_BATCH, -(-n // BATCH_ROUND) * BATCH_ROUND)
-    thetas = np.concatenate([ident.draws, np.repeat(ident.theta[None], -n % batch, axis=0)])
     theta, force = jnp.asarray(ident.theta, float), jnp.asarray(force, float)
-    return [(ident.coordinates, theta, jnp.asarray(thetas[i:i + batch], float), force,
-             stacked, weights) for i in range(0, len(thetas), batch)]
+    return [(ident.coordinates, theta, jnp.asarray(thetas, float), force, stacked, weights)
+            for thetas in draw_batches(ident, BATCH_ROUND)]
 
 
 def points_at_draws(ident: Identified, force: float, hints, peak, calls=None) -> np.ndarray:

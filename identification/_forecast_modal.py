@@ -10,7 +10,7 @@ import numpy as np
 
 import bsfs_jax
 
-from ._forecast import Identified, from_hessian, value_jac_hess
+from ._forecast import Identified, draw_batches, from_hessian, value_jac_hess
 
 
 def _modal_values(coords, theta):
@@ -35,20 +35,14 @@ def _modal_at_draws(coords, thetas):
     return jax.vmap(functools.partial(_modal_values, coords))(thetas)
 
 
-DRAW_BATCH = 256  # draws pushed through the model per call (one program for any count)
-
-
 def _modal_draws(ident: Identified) -> np.ndarray:
     """`_modal_at_draws` at the identification's draws, in batches of `DRAW_BATCH` (the
     last padded with the estimate): one program for any count of refits or draws."""
     import jax.numpy as jnp
 
-    n = len(ident.draws)
-    thetas = np.concatenate([ident.draws,
-                             np.repeat(ident.theta[None], -n % DRAW_BATCH, axis=0)])
-    return np.concatenate([np.asarray(_modal_at_draws(
-        ident.coordinates, jnp.asarray(thetas[i:i + DRAW_BATCH], float)))
-        for i in range(0, len(thetas), DRAW_BATCH)])[:n]
+    return np.concatenate([np.asarray(_modal_at_draws(ident.coordinates,
+                                                      jnp.asarray(thetas, float)))
+                           for thetas in draw_batches(ident)])[:len(ident.draws)]
 
 
 def _modal(ident: Identified):

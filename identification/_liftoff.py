@@ -11,6 +11,13 @@ import bsfs_jax
 from bsfs_jax.machine import JOINTS
 
 from ._forecast import ForecastError, from_hessian, locate_peak, value_jac_hess
+from ._liftoff_draws import (
+    LIFTOFF_FTOL,
+    LIFTOFF_RTOL,
+    LIFTOFF_STEPS,
+    liftoff_at_draws,
+    prefetch_liftoff,
+)
 
 GRID = 2001  # frequencies over the band where each joint's receptance peak is sought
 
@@ -105,13 +112,8 @@ LIFTOFF_SETTINGS_TOL = 1e-4
 # first's 16), so both start there, and the two searches share one corrector program and
 # one deformation program (from 8, the count climbed through 8, 16 and 32: three of each).
 LIFTOFF_HARMONICS = 32
-LIFTOFF_STEPS = 8
-LIFTOFF_RTOL = 1e-4
-# ... or where a secant step moves the force by less than this fraction of it: the
-# deformation at the located peak carries noise of about 1e-4 um (the continuation's
-# tolerances), which on coverage replicate 78 kept the nut's secant hopping within 0.004 N
-# of 102.506 N without meeting the test above (its lift-off's std: 0.55 N).
-LIFTOFF_FTOL = 1e-4
+# The secant's steps and stopping tests (LIFTOFF_STEPS, LIFTOFF_RTOL, LIFTOFF_FTOL) are
+# `_liftoff_draws`' too, where the search runs at each draw.
 
 
 def joint_min_deformation(params, force, hint, joint):
@@ -181,7 +183,8 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop, *, second: bool = T
     found = {}
     with ThreadPoolExecutor(max_workers=2) as pool:
         jobs = [(k, pool.submit(_joint_on_orbits, ident, k, per_joint[k], derivs, start,
-                                stop, f0 * per_joint[k].value, f1 * per_joint[k].value))
+                                stop, f0 * per_joint[k].value, f1 * per_joint[k].value,
+                                k == first))
                 for k, (f0, f1) in starts]
         for k, job in jobs:
             per[k], found[k] = job.result()
@@ -198,42 +201,57 @@ def nonlinear_liftoff(ident, per_joint, derivs, start, stop, *, second: bool = T
     return total, per
 
 
-def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
-    """(quantity, F* or None): joint `JOINTS[k]`'s lift-off force on the nonlinear orbits,
-    or its linearised quantity `lin` with the reason where the search failed."""
+def search_on_orbits(ident, theta, joint: str, f0: float, f1: float, start: float,
+                     stop: float, first_hint=None):
+    """(F*, the FRC peak's hint at F*, m_F, m_theta there): the force at which `joint`
+    loses contact on the orbit at the FRC peak of the model at `theta`, by a secant in the
+    force from f0, f1, the peak located afresh by continuation at each force (each step's
+    program returns the deformation's gradients with its value). `first_hint(hint)`:
+    called with the first located peak."""
     from bsfs_jax.design import OrbitSettings
 
-    joint = JOINTS[k]
     settings = OrbitSettings(frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL,
                              frc_harmonics=LIFTOFF_HARMONICS)
-    coords = ident.coordinates
+    p = ident.params_at(theta)
 
-    def m_and_grads(force, hint, th):
-        (value, (g_theta, g_f)) = min_deformation(coords, th, force, hint, joint)
-        return float(value), np.asarray(g_theta), float(g_f)
+    def m(force):
+        hint, _ = locate_peak(p, force, start, stop, settings)
+        (value, (g_theta, g_f)) = min_deformation(ident.coordinates, theta, force, hint,
+                                                  joint)
+        return float(value), np.asarray(g_theta), float(g_f), hint
 
-    def search(th, f0, f1):
-        """(F*, hint at F*, m_theta and m_F there) on the model at th: secant in the force
-        from f0, f1 (each step's program returns the gradients with the value)."""
-        p = ident.params_at(th)
+    m0, *first = m(f0)
+    if first_hint is not None:
+        first_hint(first[-1])
+    m1, *last = m(f1)
+    scale = abs(m0) + abs(m1)
+    for _ in range(LIFTOFF_STEPS):
+        f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
+        m2, *step = m(f2)
+        f0, m0, f1, m1, last = f1, m1, f2, m2, step
+        if abs(m1) < LIFTOFF_RTOL * scale or abs(f1 - f0) < LIFTOFF_FTOL * abs(f1):
+            return f1, *last[::-1]
+    raise ForecastError("no convergence")
 
-        def m(force):
-            hint, _ = locate_peak(p, force, start, stop, settings)
-            return (*m_and_grads(force, hint, th), hint)
 
-        m0 = m(f0)[0]
-        m1, *last = m(f1)
-        scale = abs(m0) + abs(m1)
-        for _ in range(LIFTOFF_STEPS):
-            f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
-            m2, *step = m(f2)
-            f0, m0, f1, m1, last = f1, m1, f2, m2, step
-            if abs(m1) < LIFTOFF_RTOL * scale or abs(f1 - f0) < LIFTOFF_FTOL * abs(f1):
-                return f1, *last[::-1]
-        raise ForecastError("no convergence")
+def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1, at_draws):
+    """(quantity, F* or None): joint `JOINTS[k]`'s lift-off force on the nonlinear orbits,
+    or its linearised quantity `lin` with the reason where the search failed. `at_draws`:
+    with saved draws, the search at each of them where the quadratic model is doubtful
+    (`_liftoff_draws`). Only for the joint that opens first: the other opens on orbits on
+    which the first joint has lost contact over part of the period, where the peak's
+    extended system (its tangent rows) is not differentiable, and on the bundled worn
+    drive its point could not be followed at 36 of the 200 refits (at 30 or at 100 chord
+    steps alike), so it keeps the quadratic model (`scripts/liftoff_draws_check.py`)."""
+    joint = JOINTS[k]
 
+    def search(th, f0, f1, first_hint=None):
+        return search_on_orbits(ident, th, joint, f0, f1, start, stop, first_hint)
+
+    at_draws = at_draws and ident.draws is not None
     try:
-        f_star, hint, g_f, g_theta = search(ident.theta, f0, f1)
+        f_star, hint, g_f, g_theta = search(ident.theta, f0, f1, first_hint=(
+            (lambda h: prefetch_liftoff(ident, h, k)) if at_draws else None))
     except (ForecastError, ZeroDivisionError) as exc:
         return undetermined(lin, f"the search on the nonlinear orbits failed ({exc})"), None
     how = "implicit"
@@ -255,17 +273,22 @@ def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1):
                 return undetermined(lin, "the lift-off force's gradient failed on the "
                                          "nonlinear orbits"), None
     values, jac, hess = derivs
+    # With saved draws the model itself decides where the quadratic model is doubtful:
+    # the search run at each draw in one vmapped program (`_liftoff_draws`).
+    exact = (lambda: liftoff_at_draws(ident, hint, f_star, grad, k)) if at_draws else None
     q = from_hessian(
         lin.name, "N", f_star, grad, carried_hessian(f_star, grad, values[k], jac[k],
                                                      hess[k]), ident,
         method="delta (nonlinear orbit at the FRC peak)",
         quadratic="quadratic (nonlinear orbit; Hessian carried from the linearised joints)",
-        approximate=True, extra=dict(
+        approximate=True, exact=exact, extra=dict(
             frequency_hz=float(hint.frequency_hz), linearised_n=lin.value, gradient=how,
             note=f"the force at which the {joint} loses contact on the periodic orbit at the "
                  "FRC peak (harmonic balance); its second-order check uses the linearised "
                  "lift-off's exact Hessian carried to the orbits (F* = r F_lin, r's own "
-                 "curvature left out)"))
+                 "curvature left out)" + (", and where that says the linearisation is "
+                 "doubtful and the identification saved draws, the search at each draw"
+                 if exact is not None else "")))
     return q, f_star
 
 

@@ -8,14 +8,16 @@ same way:
 - modal quantities and preloads (delta, the model over the refits): replicates 0-399;
 - the FRC quantities (the quadratic model over the refits, floored at the delta
   half-width since session 11): 0-199 and 300-399 (200-299 ran before the floor);
-- the first joint's lift-off (`liftoff_force_n`, the bearing's): 0-199 (the lift-off
-  pass `--part liftoff` at the commit named in COVERAGE.md) and 300-399 (its search then
-  started at 16 harmonics instead of 32 and stopped on the deformation alone: the same
-  force to about 0.01 N, against a std of 0.26 N);
-- the second joint's (`liftoff_force_nut_n`, on the orbits since session 12): 0-199;
+- the first joint's lift-off (`liftoff_force_n`, the bearing's; the search itself at
+  each refit since session 14, section "Session 14"): 0-199, the lift-off pass
+  `--part liftoff` run again at that commit (before, the quadratic model with the
+  carried Hessian, over 0-199 and 300-399);
+- the second joint's (`liftoff_force_nut_n`, on the orbits since session 12): 0-199
+  (the same pass; its method is unchanged);
 - the FRC's peak and folds (the model itself at each refit since session 13, section
-  "Session 13"): replicates 0-99 run again at that commit. That set repeats seeds of
-  0-199, so it contributes those four quantities only, and 0-199 no longer does.
+  "Session 13"): replicates 0-99 run again at that commit, and 100-199 at session 14's
+  (section "Session 14"). These sets repeat seeds of 0-199, so they contribute those
+  four quantities only, and 0-199 no longer does.
 
     python scripts/forecast_coverage_pool.py            # the table (Markdown) on stdout
 
@@ -41,20 +43,22 @@ WHOLE = {  # replicates -> the whole forecast's rows
     "200-299": "forecast_coverage_100N_refits_200_299.jsonl.gz",
     "300-399": "forecast_coverage_100N_refits_floor_300_399.jsonl.gz",
     "0-99 followed": "forecast_coverage_100N_followed_0_99.jsonl.gz",
+    "100-199 followed": "forecast_coverage_100N_followed_100_199.jsonl.gz",
 }
-LIFTOFF = {"0-199": "forecast_coverage_100N_liftoff_both_joints_0_199.jsonl.gz"}
+LIFTOFF = {"0-199": "forecast_coverage_100N_liftoff_draws_0_199.jsonl.gz"}
 FRC = ("peak_frequency_hz", "peak_amplitude_um", "fold_up_hz", "fold_down_hz",
        "liftoff_force_n", "liftoff_force_bearing_n")  # floored since session 11
 FOLLOWED = FRC[:4]  # the model at each refit since session 13
+SEARCHED = FRC[4:]  # the lift-off search at each refit since session 14
 
 
 def contributes(sets: str, quantity: str) -> bool:
     """Whether replicate set `sets` computed `quantity` as the current code does."""
     if quantity in FOLLOWED:
-        return sets == "0-99 followed"
-    if sets == "0-99 followed":  # its seeds repeat 0-199's
+        return sets.endswith("followed")
+    if sets.endswith("followed"):  # their seeds repeat 0-199's
         return False
-    if quantity == "liftoff_force_nut_n":
+    if quantity == "liftoff_force_nut_n" or quantity in SEARCHED:
         return sets in LIFTOFF
     return not (quantity in FRC and sets == "200-299")
 

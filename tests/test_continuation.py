@@ -396,3 +396,28 @@ def test_bifurcations_without_the_peaks(duffing_frc):
     np.testing.assert_allclose(folds, [b.p for b in duffing_frc.bifurcations
                                        if b.kind == "fold"], rtol=1e-12)
     assert branch.info["corrector_calls"] < duffing_frc.info["corrector_calls"]
+
+
+def test_bifurcations_without_the_amplitudes(duffing_frc):
+    """`amplitudes=False` (`bsfs continue`'s cross-check of the folds, its program
+    prefetched as the command does it) leaves the orbits' samples out of the corrector:
+    the same points and located folds, NaN amplitudes, and no peak events; asking for the
+    peaks without the amplitudes is refused."""
+    from bsfs_jax.solvers import Shooting, prefetch_corrector
+
+    family = frequency_family(**HARDENING)
+    kw = dict(vector_field=duffing, scale=jnp.ones(2), normalise=False, p_scale=1.0,
+              find_peaks=False, amplitudes=False)
+    prefetch_corrector(family, duffing, Shooting(), jnp.array([0.1, 0.0]), 0.8,
+                       amplitudes=False).result(timeout=300)
+    branch = continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05, **kw)
+    assert branch.info["corrector_traces"] == 0  # the prefetched program
+    np.testing.assert_allclose(branch.p, duffing_frc.p, rtol=1e-12)
+    assert np.all(np.isnan(branch.amplitudes)) and not branch.peaks
+    folds = [b.p for b in branch.bifurcations if b.kind == "fold" and b.located]
+    np.testing.assert_allclose(folds, [b.p for b in duffing_frc.bifurcations
+                                       if b.kind == "fold"], rtol=1e-12)
+    assert {b.kind for b in branch.bifurcations} == {"fold"}
+    with pytest.raises(ValueError, match="find_peaks needs the amplitudes"):
+        continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                        **dict(kw, find_peaks=True))

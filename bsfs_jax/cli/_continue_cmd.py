@@ -127,8 +127,8 @@ def _cross_check_folds(family, branch, method, settings, args):
         p_far = b.p + 2.0 * (b.p - p0) if b.p != p0 else b.p * 1.001
         try:
             local = continue_orbits(family, branch.states[i], p0, p_far, method=method,
-                                    ds=0.02, max_points=60, amplitude_index=2,
-                                    p_scale=abs(p_far - p0) * 10)
+                                    ds=0.02, max_points=60, amplitudes=False,
+                                    find_peaks=False, p_scale=abs(p_far - p0) * 10)
             folds = [f for f in local.bifurcations if f.kind == "fold"]
         except Exception as exc:  # noqa: BLE001 - reported, not fatal
             checks.append({"frequency_hz": b.p, "other_method": method.name,
@@ -192,7 +192,7 @@ def run_continue(args) -> int:
     pending = None if args.method == "shooting" or (
         args.method == "hb" and args.no_cross_check) else prefetch_corrector(
             family, family.vector_field, shooting, np.zeros(6), args.start,
-            amplitude_index=2)
+            amplitudes=False)
     print(f"transient of {args.transient_periods} periods at {args.start:g} Hz, "
           f"{args.force:g} N ...", flush=True)
     # Only a start for the corrector: the forward-only fused loop compiles in about half

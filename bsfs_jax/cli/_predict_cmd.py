@@ -57,12 +57,15 @@ def run_predict(args) -> int:
         draws=ident.draws_note,
         note="95 % intervals from the identification's covariance: delta method through "
              "exact implicit gradients, checked at second order (exact Hessian; for the FRC "
-             "quantities, probes along the covariance's least determined directions). Where "
-             "the second-order std exceeds 10 % of the linear one, the 2.5-97.5 % range of "
-             "the quadratic model over draws: the posterior draws, else the bootstrap "
-             "refits, else Gaussian draws from the covariance ('draws' says which were "
-             "saved; each quantity's method says which was used). dominated_by names the "
-             "fitted parameter whose own variance contributes most")
+             "quantities, the linear model's error over the saved draws, else probes along "
+             "the covariance's least determined directions). Where the second-order std "
+             "exceeds 10 % of the linear one, the 2.5-97.5 % range over draws: of the "
+             "model itself at each saved draw (the modal quantities, the FRC's peak and "
+             "folds, the first joint's lift-off force), else of the quadratic model (the "
+             "posterior draws, else the bootstrap refits, else Gaussian draws from the "
+             "covariance; 'draws' says which were saved, each quantity's method which was "
+             "used). dominated_by names the fitted parameter whose own variance "
+             "contributes most")
     out = ui.out_dir(args.out)
     ui.write_json(out / "prediction.json", data)
     fig = forecast_figure(fc["curves"], fc["nominal_branch"], by_name, fc["force_n"])

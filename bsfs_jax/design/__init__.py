@@ -26,6 +26,8 @@ if TYPE_CHECKING:
     from ._crosscheck import paper_crosscheck as paper_crosscheck
     from ._frc_follow import follow_point as follow_point
     from ._frc_follow import follow_start as follow_start
+    from ._frc_follow import follow_to as follow_to
+    from ._frc_follow import orbit_samples_at as orbit_samples_at
     from ._gradcheck import FD_TOLERANCE as FD_TOLERANCE
     from ._gradcheck import check_gradient as check_gradient
     from ._gradcheck import compare_gradients as compare_gradients
@@ -90,6 +92,8 @@ _LAZY = {
     "verify_by_simulation": "._optimize",
     "follow_point": "._frc_follow",
     "follow_start": "._frc_follow",
+    "follow_to": "._frc_follow",
+    "orbit_samples_at": "._frc_follow",
     "OPENS_FRACTION": "._orbit",
     "OrbitSettings": "._orbit",
     "PeakHint": "._orbit",

@@ -104,16 +104,25 @@ def follow_point(params, force_n, hint, peak_weight, start):
     to `params` by chord Newton from `start` (`follow_start` at the estimate). Traceable
     and vmappable over `params`; a lane that does not converge in `FOLLOW_MAX_STEPS`
     steps, or whose residual stays above `FOLLOW_RESIDUAL_TOL`, says so."""
+    x, ok = follow_to(params, force_n, hint, peak_weight, start)
+    n = x.shape[0] // 2
+    return _functions(params, force_n, hint)[1](x[:n]), x[n - 1] * hint.p_scale, ok
+
+
+def follow_to(params, force_n, hint, peak_weight, start):
+    """(x, converged): the point x = (v, t) that `follow_point` reaches (v: the orbit
+    unknowns and the scaled frequency). `start` may carry another first point in place of
+    the located one (`follow_start`'s x0: the chord matrix stays the estimate's), e.g. the
+    point followed to a nearby force; its convergence test is relative to that point."""
     x0, lu, piv, amplitude_ref = start
     functions = _functions(params, force_n, hint)
     extended = _system(functions, hint, peak_weight, amplitude_ref)
-    amplitude = functions[1]
     n = x0.shape[0] // 2
     # a step's largest move of the point for it to count as converged; a fold's
     # amplitude is not its quantity (and moves along the fold's null direction)
     step_tol = FOLLOW_STEP_TOL / jnp.stack([1.0, peak_weight])
 
-    # The loop carries x, its (frequency, amplitude) relative to the located point's and
+    # The loop carries x, its (frequency, amplitude) relative to the first point's and
     # E(x): each pass tests the point it holds (E small, and the step that led there
     # moved it by less than FOLLOW_STEP_TOL) before stepping on, so E's own pass
     # gives the amplitude (no third integration per step).
@@ -139,8 +148,17 @@ def follow_point(params, force_n, hint, peak_weight, start):
 
     e0, q0 = measured(x0)
     _, x, e, q, q_before = jax.lax.while_loop(cond, body, (0, x0, e0, q0, q0 + jnp.inf))
-    # the values one step further (E at x is known): the test above bounds the last
+    # the point one step further (E at x is known): the test above bounds the last
     # step's move, this step's is smaller again
     x_last = x - jax.scipy.linalg.lu_solve((lu, piv), e)
-    return (amplitude(x_last[:n]), x_last[n - 1] * hint.p_scale,
-            converged(e, q, q_before, x) & jnp.all(jnp.isfinite(x_last)))
+    return x_last, converged(e, q, q_before, x) & jnp.all(jnp.isfinite(x_last))
+
+
+def orbit_samples_at(params, force_n, hint, v):
+    """(ys (K, 6) [SI], system): the orbit with unknowns `v` (a point of `follow_to`) as
+    the hint's method's uniform samples over one period."""
+    family = BSFSFamily(params, hint.frequency_hz, force_n).prepare()
+    args, period = family(v[-1] * hint.p_scale)
+    _, ys = hint.method.samples(vector_field, v[:-1], args, period, 1, hint.scale,
+                                dfx.ForwardMode())
+    return ys, args[0]

@@ -49,7 +49,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                     tol: float = 1e-8, max_newton: int = 8, max_angle: float = 0.3,
                     amplitude_index: int = 0, locate: bool = True, locate_iters: int = 14,
                     find_peaks: bool = True, normalise: bool = True, trim: bool = True,
-                    progress=False) -> Branch:
+                    amplitudes: bool = True, progress=False) -> Branch:
     """Follow a branch of n T-periodic orbits from p_start towards p_stop.
 
     **Main arguments:**
@@ -81,6 +81,9 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
       skips their location, e.g. where only the bifurcations are wanted, and
       `info["peaks_searched"]` says so: `Branch.peak` is then None without meaning that
       the amplitude has no interior maximum).
+    - `amplitudes`: False leaves the orbits' amplitudes out (NaN; needs
+      `find_peaks=False`): a smaller corrector program, where only the bifurcations
+      are wanted (`bsfs continue`'s cross-check of the folds by the other method).
     - `progress`: True for a tqdm bar, or a callable(n_points, p).
 
     **Returns:** a `Branch`; raises `SolverError` if the first orbit cannot be found.
@@ -97,6 +100,9 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                          f"{p_stop}")
     if not ds > 0:
         raise ValueError(f"ds must be positive, got {ds}")
+    if not amplitudes and find_peaks:
+        raise ValueError("find_peaks needs the amplitudes: give find_peaks=False with "
+                         "amplitudes=False")
     ds_min = ds / 1000 if ds_min is None else float(ds_min)
     ds_max = 10 * ds if ds_max is None else float(ds_max)
     family = prepare_outside(float_leaves_to_arrays(family))
@@ -116,7 +122,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     lo, hi = min(p_start, p_stop), max(p_start, p_stop)
 
     kernel = Kernel(family, vector_field, method, scale, p_scale, n_periods, tol, max_newton,
-                    amplitude_index)
+                    amplitude_index if amplitudes else -1)
     traces_before = TRACE_COUNTS["corrector"]
     kernel, first = _first_point(kernel, y_guess, p_start, normalise, samples)
     first = first.oriented(direction)

@@ -1,0 +1,127 @@
+"""The lift-off force on the nonlinear orbits by the model itself at each saved draw.
+
+At the estimate, a joint's lift-off force F* is where its smallest contact deformation
+over the orbit at the FRC peak, m(F, theta), reaches zero (`_liftoff.py`: a secant in the
+force, the peak located afresh by continuation at each force). At a draw theta_k the same
+secant runs inside one vmapped program, the peak not located afresh but followed
+(`bsfs_jax.design.follow_to`: chord Newton on the peak's extended system, the chord
+matrix the estimate's at F*) from the estimate's peak to (theta_k, F), and from each
+secant step's point to the next. The secant starts at the delta prediction
+F* + g . (theta_k - theta_hat) and stops as the search at the estimate does
+(`LIFTOFF_RTOL`, `LIFTOFF_FTOL`). A lane whose point cannot be followed, or whose secant
+does not stop in `LIFTOFF_STEPS` steps, gives NaN, not a value.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import bsfs_jax
+from bsfs_jax.machine import JOINTS
+
+from ._forecast import draw_batches
+from ._forecast_frc_draws import BATCH_ROUND
+
+FIRST_STEP = 1e-3  # the secant's second force: the first times (1 + FIRST_STEP)
+# The lift-off secant (here and at the estimate, `_liftoff.search_on_orbits`): at most
+# this many steps; stop where the deformation is this fraction of the first two ...
+LIFTOFF_STEPS = 8
+LIFTOFF_RTOL = 1e-4
+# ... or where a secant step moves the force by less than this fraction of it: the
+# deformation at the located peak carries noise of about 1e-4 um (the continuation's
+# tolerances), which on coverage replicate 78 kept the nut's secant hopping within 0.004 N
+# of 102.506 N without meeting the test above (its lift-off's std: 0.55 N).
+LIFTOFF_FTOL = 1e-4
+
+
+def min_deformation_at(params, force, hint, v, joint):
+    """The smallest contact deformation [m] of joint `joint` (traced index into `JOINTS`)
+    over the orbit with unknowns `v` (`design.orbit_samples_at`)."""
+    import jax.numpy as jnp
+
+    from bsfs_jax.design import orbit_samples_at
+    from bsfs_jax.physics import contact_deformations
+
+    ys, system = orbit_samples_at(params, force, hint, v)
+    bearing = jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel()
+    nut = jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()
+    return jnp.where(joint == JOINTS.index("bearing"), jnp.min(bearing), jnp.min(nut))
+
+
+@bsfs_jax.cached_jit
+def _liftoff_lanes(coords, theta, thetas, f_star, grad, hint, joint):
+    """(n, 4): (F*, converged, every point followed, secant steps) at each row of
+    `thetas`, from the estimate's F* `f_star` with gradient `grad` and its FRC peak
+    `hint`."""
+    import jax
+    import jax.numpy as jnp
+
+    from bsfs_jax.design import follow_start, follow_to
+
+    x0, lu, piv, amplitude_ref = follow_start(coords.at(theta), f_star, hint, 1.0)
+
+    def lane(th):
+        params = coords.at(th)
+        n = x0.shape[0] // 2
+
+        def m(force, x_from):
+            x, ok = follow_to(params, force, hint, 1.0, (x_from, lu, piv, amplitude_ref))
+            return min_deformation_at(params, force, hint, x[:n], joint), x, ok
+
+        f0 = f_star + jnp.dot(grad, th - theta)
+        f1 = f0 * (1.0 + FIRST_STEP)
+        m0, x_a, ok0 = m(f0, x0)
+        m1, x1, ok1 = m(f1, x_a)
+        scale = jnp.abs(m0) + jnp.abs(m1)
+
+        def stopped(f0, m0, f1, m1):
+            return (jnp.abs(m1) < LIFTOFF_RTOL * scale) | (
+                jnp.abs(f1 - f0) < LIFTOFF_FTOL * jnp.abs(f1))
+
+        def cond(carry):
+            k, f0, m0, f1, m1, _, ok = carry
+            return (k < LIFTOFF_STEPS) & ok & ~stopped(f0, m0, f1, m1)
+
+        def body(carry):
+            k, f0, m0, f1, m1, x1, ok = carry
+            f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
+            m2, x2, ok2 = m(f2, x1)
+            return k + 1, f1, m1, f2, m2, x2, ok & ok2 & jnp.isfinite(f2)
+
+        carry = (0, f0, m0, f1, m1, x1, ok0 & ok1)
+        k, f0, m0, f1, m1, _, ok = jax.lax.while_loop(cond, body, carry)
+        return jnp.stack([f1, (ok & stopped(f0, m0, f1, m1)).astype(float),
+                          ok.astype(float), k.astype(float)])
+
+    return jax.vmap(lane)(thetas)
+
+
+def _calls(ident, hint, f_star, grad, joint) -> list:
+    """`_liftoff_lanes`' arguments for each batch of the draws (`draw_batches`, padded
+    as the FRC points' are: each lane costs its follows)."""
+    import jax.numpy as jnp
+
+    head = (ident.coordinates, jnp.asarray(ident.theta, float))
+    tail = (jnp.asarray(f_star, float), jnp.asarray(grad, float), hint,
+            jnp.asarray(joint, jnp.int32))
+    return [(*head, jnp.asarray(thetas, float), *tail)
+            for thetas in draw_batches(ident, BATCH_ROUND)]
+
+
+def prefetch_liftoff(ident, hint, joint: int) -> None:
+    """Start compiling, on the background thread, the program that `liftoff_at_draws`
+    will call for a hint of `hint`'s layout (its values do not matter): `nonlinear_liftoff`
+    calls it at the search's first located peak, so that the program compiles while the
+    search runs on."""
+    _liftoff_lanes.prefetch_now(*_calls(ident, hint, 1.0, np.zeros(len(ident.theta)),
+                                        joint)[0])
+
+
+def liftoff_at_draws(ident, hint, f_star: float, grad, joint: int, *,
+                     details: bool = False) -> np.ndarray:
+    """(n,): joint `JOINTS[joint]`'s lift-off force [N] on the nonlinear orbits at each of
+    the identification's n draws; NaN where the model failed there. `details`: the
+    program's (n, 4) columns instead (`_liftoff_lanes`)."""
+    out = np.concatenate([np.asarray(_liftoff_lanes(*args)) for args in _calls(
+        ident, hint, f_star, grad, joint)])[:len(ident.draws)]
+    return out if details else np.where(out[:, 1] > 0.5, out[:, 0], np.nan)
