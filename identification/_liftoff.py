@@ -15,6 +15,7 @@ from ._liftoff_draws import (
     LIFTOFF_FTOL,
     LIFTOFF_RTOL,
     LIFTOFF_STEPS,
+    joint_deformations,
     liftoff_at_draws,
     prefetch_liftoff,
 )
@@ -124,13 +125,8 @@ def joint_min_deformation(params, force, hint, joint):
     import jax.numpy as jnp
 
     from bsfs_jax.design import peak_orbit_samples
-    from bsfs_jax.physics import contact_deformations
 
-    ys, system = peak_orbit_samples(params, force, hint)
-    both = {"bearing": jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel(),
-            "nut": jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()}
-    deformations = both[joint] if isinstance(joint, str) else jnp.where(
-        jnp.asarray(joint) == JOINTS.index("bearing"), both["bearing"], both["nut"])
+    deformations = joint_deformations(*peak_orbit_samples(params, force, hint), joint)
     # The smallest sample, chosen without gradient, then differentiated (the minimum over
     # the orbit is stationary in time, so this is its exact derivative). Not `jnp.min`:
     # the orbit's half-period symmetry makes one side's smallest sample bit-equal to the

@@ -34,18 +34,25 @@ LIFTOFF_RTOL = 1e-4
 LIFTOFF_FTOL = 1e-4
 
 
+def joint_deformations(ys, system, joint):
+    """The contact deformations [m] of both sides of joint `joint` (a name in `JOINTS` or
+    its traced index) at the orbit samples `ys` (K, 6), flattened."""
+    import jax.numpy as jnp
+
+    from bsfs_jax.physics import contact_deformations
+
+    both = {"bearing": jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel(),
+            "nut": jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()}
+    return both[joint] if isinstance(joint, str) else jnp.where(
+        jnp.asarray(joint) == JOINTS.index("bearing"), both["bearing"], both["nut"])
+
+
 def min_deformation_at(params, force, hint, v, joint):
     """The smallest contact deformation [m] of joint `joint` (traced index into `JOINTS`)
     over the orbit with unknowns `v` (`design.orbit_samples_at`)."""
-    import jax.numpy as jnp
-
     from bsfs_jax.design import orbit_samples_at
-    from bsfs_jax.physics import contact_deformations
 
-    ys, system = orbit_samples_at(params, force, hint, v)
-    bearing = jnp.stack(contact_deformations(ys[:, 0], system.bearing)).ravel()
-    nut = jnp.stack(contact_deformations(ys[:, 2] - ys[:, 1], system.nut)).ravel()
-    return jnp.where(joint == JOINTS.index("bearing"), jnp.min(bearing), jnp.min(nut))
+    return joint_deformations(*orbit_samples_at(params, force, hint, v), joint).min()
 
 
 @bsfs_jax.cached_jit

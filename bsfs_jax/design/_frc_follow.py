@@ -40,6 +40,7 @@ import jax.numpy as jnp
 from ..machine import BSFSFamily
 from ..model import vector_field
 from ..solvers import family_amplitudes, family_residual
+from ._orbit import orbit_samples
 
 FOLLOW_MAX_STEPS = 30
 FOLLOW_STEP_TOL = 1e-7
@@ -157,8 +158,5 @@ def follow_to(params, force_n, hint, peak_weight, start):
 def orbit_samples_at(params, force_n, hint, v):
     """(ys (K, 6) [SI], system): the orbit with unknowns `v` (a point of `follow_to`) as
     the hint's method's uniform samples over one period."""
-    family = BSFSFamily(params, hint.frequency_hz, force_n).prepare()
-    args, period = family(v[-1] * hint.p_scale)
-    _, ys = hint.method.samples(vector_field, v[:-1], args, period, 1, hint.scale,
-                                dfx.ForwardMode())
-    return ys, args[0]
+    return orbit_samples(BSFSFamily(params, hint.frequency_hz, force_n).prepare(), hint, v,
+                         dfx.ForwardMode())

@@ -381,7 +381,13 @@ def peak_orbit_samples(params, force_n, hint: PeakHint, adjoint=ImplicitReverse(
     of the orbit evaluated at the point; exact where that quantity is extremal along the
     branch)."""
     v, family = _on_hyperplane(params, force_n, hint, adjoint)
+    return orbit_samples(family, hint, v, adjoint.ode_adjoint())
+
+
+def orbit_samples(family, hint: PeakHint, v, ode_adjoint):
+    """(ys (K, 6) [SI], system): the orbit of `family` with the hint's unknowns `v` (the
+    scaled frequency last) as the hint's method's uniform samples over one period."""
     args, period = family(v[-1] * hint.p_scale)
     _, ys = hint.method.samples(vector_field, v[:-1], args, period, 1, hint.scale,
-                                adjoint.ode_adjoint())
+                                ode_adjoint)
     return ys, args[0]
