@@ -75,7 +75,7 @@ def same_orbits(theta, a: FitData, b: FitData, structure: Structure) -> bool:
     of `b` (finite, and within `SAME_ORBIT_STD` standard errors of every used harmonic)."""
     th = jnp.asarray(theta, float)
     pa, pb = predictions(th, a, structure), predictions(th, b, structure)
-    for (sa, _), (sb, _), g in zip(pa, pb, a.groups):
+    for (sa, *_), (sb, *_), g in zip(pa, pb, a.groups):
         swept = np.asarray(g.sine_orbit) & (np.asarray(g.sine_sweep) != 0)
         if not swept.any():
             continue

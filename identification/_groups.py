@@ -60,6 +60,10 @@ class GroupData(eqx.Module):
     sine_force: jax.Array  # (R, H) complex force harmonics [N]
     sine_acc: jax.Array  # (R, H) complex measured acceleration harmonics [m/s^2]
     sine_scale: jax.Array  # (R, H, 2) std of (Re, Im); inf: not used (padding, filter band)
+    # (R, H) complex mean rates of change of the force harmonics' envelopes [N/s, N/s^2]
+    # (a drifting shaker: `_measurement.drift_terms`; zero for padding)
+    sine_rate: jax.Array
+    sine_rate2: jax.Array
     sine_first: jax.Array  # (R,) bool: first-order harmonic-balance correction added
     sine_orbit: jax.Array  # (R,) bool: periodic-orbit (harmonic balance) model
     orbit_index: jax.Array  # (S,) int: the records whose orbit is computed (padded)
@@ -103,19 +107,23 @@ def _sine_arrays(problem, idx, h, rows):
     force = np.zeros((rows, h), complex)
     acc = np.zeros((rows, h), complex)
     std = np.full((rows, h, 2), np.inf)
+    rate = np.zeros((rows, h), complex)
+    rate2 = np.zeros((rows, h), complex)
     data = problem.data
     for j, i in enumerate(idx):
         d = data[i]
         freq[j] = d.frequency_hz * d.harmonics
         force[j] = d.force
         acc[j] = d.acceleration
+        if d.force_rate is not None:
+            rate[j], rate2[j] = d.force_rate, d.force_rate2
         # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the model's
         # transfer where the models were chosen (a weight only; not differentiated).
         var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
         # Harmonics near the anti-alias filter are left out (their phase is the filter's,
         # not the structure's): infinite std -> zero residual.
         std[j] = np.where((freq[j] <= problem.max_harmonic_hz)[:, None], np.sqrt(var), np.inf)
-    return freq, force, acc, std
+    return freq, force, acc, std, rate, rate2
 
 
 def _frf_arrays(problem, idx, lines):
@@ -173,7 +181,7 @@ def build_data(problem, is_frf):
             pad.get(s, (0, 0, 0))))
         orbit_index = np.asarray(orbit + [orbit[0] if orbit else 0] * (slots - len(orbit)),
                                  int)
-        sf, sF, sA, sS = _sine_arrays(problem, sine_idx, h, rows)
+        sf, sF, sA, sS, sR, sR2 = _sine_arrays(problem, sine_idx, h, rows)
         first = np.zeros(rows, bool)
         nl = np.zeros(rows, bool)
         sweep = np.zeros(rows)
@@ -185,7 +193,8 @@ def build_data(problem, is_frf):
         swept += [swept[0] if swept else 0] * (size_class(len(swept)) - len(swept))
         ff, fA, fS = _frf_arrays(problem, frf_idx, lines)
         groups.append(GroupData(np.asarray(sf), np.asarray(sF), np.asarray(sA),
-                                np.asarray(sS), np.asarray(first), np.asarray(nl),
+                                np.asarray(sS), np.asarray(sR), np.asarray(sR2),
+                                np.asarray(first), np.asarray(nl),
                                 np.asarray(orbit_index), np.asarray(sweep),
                                 np.zeros((rows, width)), np.asarray(swept, int),
                                 np.asarray(ff), np.asarray(fA),

@@ -7,8 +7,10 @@ slow quadratic envelope (Legendre polynomials in time) and the DC allowed a quad
 drift. The envelope's mean is the coefficient used; the leftover residual gives the noise
 variance and hence the standard error of every coefficient. This is period-synchronous
 averaging done optimally: it uses every sample, it tolerates a slowly drifting shaker
-(the drift appears identically in force and acceleration of a quasi-linear system, so the
-mean coefficients stay consistent) and it gives honest weights. The frequency is refined
+and it gives honest weights. (Away from a resonance the drift appears identically in force
+and acceleration of a quasi-linear system; near a lightly damped one the response lags the
+force's envelope by the group delay, which the model carries through the force envelope's
+mean rates of change, `drift_terms`.) The frequency is refined
 by minimising the force fit's residual around the header value.
 
 **Model side.** The model is driven by the measured force harmonics (`HarmonicForcing`)
@@ -61,7 +63,10 @@ class HarmonicData:
     - `force`, `acceleration`: (H,) complex coefficients c_k, signal = Re(sum c_k e^{i k w t});
     - `force_var`, `acceleration_var`: (H, 2) variances of (Re c_k, Im c_k);
     - `force_noise`, `acceleration_noise`: residual RMS of the fits [N, m/s^2];
-    - `force_dc`, `acceleration_dc`: mean offsets; `n_samples`; `record`.
+    - `force_dc`, `acceleration_dc`: mean offsets; `n_samples`; `record`;
+    - `force_rate`, `force_rate2`: (H,) complex means over the record of the first and
+      second time derivatives of each force harmonic's envelope [N/s, N/s^2] (the drifting
+      shaker; `drift_terms`). None: a steady force (zeros).
     """
 
     frequency_hz: float
@@ -76,6 +81,8 @@ class HarmonicData:
     acceleration_dc: float
     n_samples: int
     record: Record
+    force_rate: np.ndarray | None = None
+    force_rate2: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -122,6 +129,23 @@ def _unpack(coef, cov_diag, n_harm, drift_order):
     return dc, c, var
 
 
+def _envelope_rates(coef, n_harm, drift_order, duration):
+    """(H,) complex means over the record of d/dt and d^2/dt^2 of each harmonic's fitted
+    envelope. With tau = 2 (t - t0) / T - 1 the envelope is sum_q c_q P_q(tau), and over
+    [-1, 1] the mean of P_q' is 1 for odd q (else 0) and the mean of P_q'' is q (q + 1) / 2
+    for even q (else 0)."""
+    q1 = drift_order + 1
+    q = np.arange(q1)
+    d1 = (2.0 / duration) * (q % 2 == 1)
+    d2 = (2.0 / duration) ** 2 * np.where(q % 2 == 0, q * (q + 1) / 2.0, 0.0)
+    rate, rate2 = np.empty(n_harm, complex), np.empty(n_harm, complex)
+    for k in range(n_harm):
+        ia = q1 * (1 + 2 * k)
+        env = coef[ia:ia + q1] - 1j * coef[ia + q1:ia + 2 * q1]
+        rate[k], rate2[k] = env @ d1, env @ d2
+    return rate, rate2
+
+
 def refine_frequency(record: Record, n_harmonics: int = N_HARMONICS) -> float:
     """Excitation frequency [Hz] minimising the force fit residual near the header value."""
     t, x = record.time, record.force
@@ -157,13 +181,15 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
     """Fourier coefficients (with standard errors) of force and acceleration of a record."""
     f = refine_frequency(record, n_harmonics)
     t = record.time
-    out = {}
+    out, rates = {}, None
     for name, x in (("force", record.force), ("acceleration", record.acceleration)):
         coef, cov_diag, s2 = _fit(x, t, f, n_harmonics, drift_order)
         out[name] = (*_unpack(coef, cov_diag, n_harmonics, drift_order), float(np.sqrt(s2)))
+        if name == "force":
+            rates = _envelope_rates(coef, n_harmonics, drift_order, t[-1] - t[0])
     (fdc, fc, fvar, fn), (adc, ac, avar, an) = out["force"], out["acceleration"]
     return HarmonicData(f, np.arange(1, n_harmonics + 1), fc, ac, fvar, avar, fn, an,
-                        float(fdc), float(adc), int(t.size), record)
+                        float(fdc), float(adc), int(t.size), record, *rates)
 
 
 # ----------------------------------------------------------------------------- model side
@@ -210,6 +236,28 @@ def linear_acceleration(system, frequencies_hz, force_coeffs):
     h = receptance(system, frequencies_hz.reshape(-1))[:, 2].reshape(shape)
     w = 2.0 * jnp.pi * frequencies_hz
     return -(w**2) * h * force_coeffs
+
+
+def drift_terms(system, frequencies_hz, rate, rate2):
+    """Correction [m/s^2] to the mean acceleration harmonics of a record whose force
+    envelope drifts (complex, the shape of `frequencies_hz`).
+
+    For a force Re(c(t) e^{i w t}) with a slowly varying envelope c(t), the response's
+    envelope is G(w) c - i G'(w) c' - G''(w) c'' / 2 + ..., G the accelerance and ' the
+    derivative in w [rad/s] (expand G(w + d) with d c -> -i dc/dt). The record's mean
+    coefficients (`harmonic_analysis`) therefore differ from G times the mean force by the
+    last two terms with c', c'' replaced by their means over the record (`rate`, `rate2`:
+    `HarmonicData.force_rate`, `force_rate2`). Near a lightly damped resonance G'/G is about
+    1 / (zeta w), the response's group delay: a 3 % drift over half a second then moves the
+    mean harmonic by several of its standard errors. Uses the linearised accelerance for
+    every model (for the periodic orbit it is the first-order term of the drift's effect).
+    """
+    one = jnp.ones(frequencies_hz.shape)
+    g = lambda f: linear_acceleration(system, f, jnp.ones(f.shape, complex))
+    first = lambda f: jax.jvp(g, (f,), (one,))[1]
+    g1, g2 = jax.jvp(first, (frequencies_hz,), (one,))  # dG/df, d^2G/df^2 [per Hz]
+    s = 1.0 / (2.0 * jnp.pi)  # d/dw = s d/df
+    return -1j * (s * g1) * rate - 0.5 * (s * s * g2) * rate2
 
 
 def linearisation_error(system, frequency_hz, force_coeffs, samples: int = NONLINEAR_SAMPLES,

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import bsfs_jax
 
 from ._groups import FitData, Structure
-from ._measurement import linear_acceleration, linearisation_error, receptance
+from ._measurement import drift_terms, linear_acceleration, linearisation_error, receptance
 from ._orbit_model import ORBIT_HARMONICS, nonlinear_acceleration
 
 # A trial point whose model is not finite (a joint without preload) costs this per entry.
@@ -77,19 +77,25 @@ def _sine_model(system, g, first_order: bool, sweeps: bool = False, orbits: bool
     return jnp.where(g.sine_orbit[:, None], full, lin)
 
 
-def predict(theta, data: FitData, structure: Structure, orbits: bool = True):
-    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,))] (complex).
-    `orbits=False`: the periodic-orbit records get their linearised model instead (a
-    caller that has their orbits already, `Problem.model_harmonics`)."""
+def predict(theta, data: FitData, structure: Structure, orbits: bool = True,
+            drift: bool = False):
+    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,))] (complex); the
+    sine harmonics include the drifting force's terms (`drift_terms`). `orbits=False`: the
+    periodic-orbit records get their linearised model instead (a caller that has their
+    orbits already, `Problem.model_harmonics`). `drift`: each group's drift terms (R, H)
+    as a third element."""
     out = []
     for gi, g in enumerate(data.groups):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
-        sine = (_sine_model(system, g, structure.first_order, structure.sweeps, orbits,
-                            data.orbits_on, structure.orbit_harmonics)
-                if g.sine_freq.shape[0] else jnp.zeros(g.sine_freq.shape, complex))
+        if g.sine_freq.shape[0]:
+            terms = drift_terms(system, g.sine_freq, g.sine_rate, g.sine_rate2)
+            sine = _sine_model(system, g, structure.first_order, structure.sweeps, orbits,
+                               data.orbits_on, structure.orbit_harmonics) + terms
+        else:
+            sine = terms = jnp.zeros(g.sine_freq.shape, complex)
         frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
                if g.frf_freq.shape[0] else jnp.zeros(0, complex))
-        out.append((sine, frf))
+        out.append((sine, frf, terms) if drift else (sine, frf))
     return out
 
 
@@ -138,7 +144,8 @@ def residual_and_jacobian(theta, data: FitData, structure: Structure):
 
 @bsfs_jax.cached_jit
 def predictions(theta, data: FitData, structure: Structure, orbits: bool = True):
-    return predict(theta, data, structure, orbits)
+    """`predict` with each group's drift terms as a third element."""
+    return predict(theta, data, structure, orbits, drift=True)
 
 
 def static_compliance(theta, data: FitData, structure: Structure, group: int):

@@ -331,13 +331,14 @@ class Problem:
     def model_harmonics(self, theta, orbit_model: dict | None = None):
         """Model accelerations per record in data order (numpy): harmonics or FRF lines.
         `orbit_model` ({record index: harmonics}): the periodic-orbit records' model where
-        the caller has it already (`_report.record_branches` at the estimate); the
-        program then solves no orbit."""
+        the caller has it already (`_report.record_branches` at the estimate, without the
+        drifting force's terms, which are added here); the program then solves no orbit."""
         preds = _model.predictions(jnp.asarray(theta, float), self.fit_data, self.structure,
                                    orbit_model is None)
         out = self.per_record(preds)
         for i, a in (orbit_model or {}).items():
-            out[i] = np.asarray(a)
+            gi, _, _, row = self.layout[i]
+            out[i] = np.asarray(a) + np.asarray(preds[gi][2])[row]
         return out
 
     def record_residuals(self, residual):

@@ -173,7 +173,9 @@ def with_clean_values(noisy, clean) -> list:
             out.append(dataclasses.replace(d, accelerance=h))
         else:
             out.append(dataclasses.replace(d, acceleration=c.acceleration, force=c.force,
-                                           frequency_hz=c.frequency_hz))
+                                           frequency_hz=c.frequency_hz,
+                                           force_rate=c.force_rate,
+                                           force_rate2=c.force_rate2))
     return out
 
 
