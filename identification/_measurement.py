@@ -116,34 +116,31 @@ def _fit(x, t, f, n_harm, drift_order):
     return coef, s2 * np.diag(ata_inv), s2
 
 
+def _blocks(x, n_harm, drift_order):
+    """(H, 2, Q+1) per harmonic: its cos then its sin block of Legendre coefficients (the
+    layout of `_design`'s columns after the DC block)."""
+    q1 = drift_order + 1
+    return np.asarray(x)[q1:q1 + 2 * q1 * n_harm].reshape(n_harm, 2, q1)
+
+
 def _unpack(coef, cov_diag, n_harm, drift_order):
-    q1 = drift_order + 1
-    dc = coef[0]
-    c = np.empty(n_harm, complex)
-    var = np.empty((n_harm, 2))
-    for k in range(n_harm):
-        ia = q1 * (1 + 2 * k)
-        ib = ia + q1
-        c[k] = coef[ia] - 1j * coef[ib]  # a cos + b sin = Re((a - i b) e^{i w t})
-        var[k] = (cov_diag[ia], cov_diag[ib])
-    return dc, c, var
+    """(DC, (H,) complex mean coefficients, (H, 2) their variances, (H, Q+1) complex
+    envelopes in Legendre coefficients: a cos + b sin = Re((a - i b) e^{i w t}))."""
+    b = _blocks(coef, n_harm, drift_order)
+    env = b[:, 0] - 1j * b[:, 1]
+    var = np.ascontiguousarray(_blocks(cov_diag, n_harm, drift_order)[:, :, 0])
+    return coef[0], np.ascontiguousarray(env[:, 0]), var, env
 
 
-def _envelope_rates(coef, n_harm, drift_order, duration):
+def _envelope_rates(env, duration):
     """(H,) complex means over the record of d/dt and d^2/dt^2 of each harmonic's fitted
-    envelope. With tau = 2 (t - t0) / T - 1 the envelope is sum_q c_q P_q(tau), and over
-    [-1, 1] the mean of P_q' is 1 for odd q (else 0) and the mean of P_q'' is q (q + 1) / 2
-    for even q (else 0)."""
-    q1 = drift_order + 1
-    q = np.arange(q1)
+    envelope (`env`: (H, Q+1) Legendre coefficients). With tau = 2 (t - t0) / T - 1 the
+    envelope is sum_q c_q P_q(tau), and over [-1, 1] the mean of P_q' is 1 for odd q (else
+    0) and the mean of P_q'' is q (q + 1) / 2 for even q (else 0)."""
+    q = np.arange(env.shape[1])
     d1 = (2.0 / duration) * (q % 2 == 1)
     d2 = (2.0 / duration) ** 2 * np.where(q % 2 == 0, q * (q + 1) / 2.0, 0.0)
-    rate, rate2 = np.empty(n_harm, complex), np.empty(n_harm, complex)
-    for k in range(n_harm):
-        ia = q1 * (1 + 2 * k)
-        env = coef[ia:ia + q1] - 1j * coef[ia + q1:ia + 2 * q1]
-        rate[k], rate2[k] = env @ d1, env @ d2
-    return rate, rate2
+    return env @ d1, env @ d2
 
 
 def refine_frequency(record: Record, n_harmonics: int = N_HARMONICS) -> float:
@@ -181,15 +178,14 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
     """Fourier coefficients (with standard errors) of force and acceleration of a record."""
     f = refine_frequency(record, n_harmonics)
     t = record.time
-    out, rates = {}, None
+    out = {}
     for name, x in (("force", record.force), ("acceleration", record.acceleration)):
         coef, cov_diag, s2 = _fit(x, t, f, n_harmonics, drift_order)
         out[name] = (*_unpack(coef, cov_diag, n_harmonics, drift_order), float(np.sqrt(s2)))
-        if name == "force":
-            rates = _envelope_rates(coef, n_harmonics, drift_order, t[-1] - t[0])
-    (fdc, fc, fvar, fn), (adc, ac, avar, an) = out["force"], out["acceleration"]
+    (fdc, fc, fvar, fenv, fn), (adc, ac, avar, _, an) = out["force"], out["acceleration"]
     return HarmonicData(f, np.arange(1, n_harmonics + 1), fc, ac, fvar, avar, fn, an,
-                        float(fdc), float(adc), int(t.size), record, *rates)
+                        float(fdc), float(adc), int(t.size), record,
+                        *_envelope_rates(fenv, t[-1] - t[0]))
 
 
 # ----------------------------------------------------------------------------- model side
@@ -202,6 +198,14 @@ def _matrices(system):
     return k, c, jnp.diag(m)
 
 
+def _dynamic_stiffness(system, frequencies_hz):
+    """(Z (L, 3, 3) = K - w^2 M + i w C per line, w (L,) [rad/s], C, M) of the model
+    linearised about x = 0 (`_matrices`), at the flattened frequencies."""
+    k, c, m = _matrices(system)
+    w = 2.0 * jnp.pi * jnp.atleast_1d(frequencies_hz).reshape(-1)
+    return k[None] - (w**2)[:, None, None] * m[None] + 1j * w[:, None, None] * c[None], w, c, m
+
+
 def receptance(system, frequencies_hz):
     """Complex receptance x_j / P [m/N], shape (len(f), 3), linearised about x = 0.
 
@@ -212,13 +216,11 @@ def receptance(system, frequencies_hz):
     trial parameter set of the optimiser loses the preload (singular stiffness -> inf, which
     the optimiser rejects) instead of raising inside the implicit derivative of the solve.
     """
-    k, c, m = _matrices(system)
-    w = 2.0 * jnp.pi * jnp.atleast_1d(frequencies_hz)
-    # Z = K - w^2 M + i w C, one 3 x 3 per line; x = Z^-1 e_3 is the third column of the
-    # adjugate over the determinant (expanded along the third row). Elementwise over the
-    # lines: about 5x faster than a batched LU with its Jacobian (identification's hot
-    # loop) and equal to it to round-off (tests/test_identification.py).
-    z = k[None] - (w**2)[:, None, None] * m[None] + 1j * w[:, None, None] * c[None]
+    # Z, one 3 x 3 per line; x = Z^-1 e_3 is the third column of the adjugate over the
+    # determinant (expanded along the third row). Elementwise over the lines: about 5x
+    # faster than a batched LU with its Jacobian (identification's hot loop) and equal to
+    # it to round-off (tests/test_identification.py).
+    z = _dynamic_stiffness(system, frequencies_hz)[0]
     a0 = z[:, 0, 1] * z[:, 1, 2] - z[:, 0, 2] * z[:, 1, 1]
     a1 = z[:, 0, 2] * z[:, 1, 0] - z[:, 0, 0] * z[:, 1, 2]
     a2 = z[:, 0, 0] * z[:, 1, 1] - z[:, 0, 1] * z[:, 1, 0]
@@ -256,9 +258,7 @@ def drift_terms(system, frequencies_hz, rate, rate2):
     # `receptance`): with Z = K - w^2 M + i w C and X = Z^-1 e_3 the nut's receptance,
     # X' = -Z^-1 Z' X and X'' = -Z^-1 (2 Z' X' + Z'' X), Z' = i C - 2 w M, Z'' = -2 M;
     # G = -w^2 X_3, so G' = -2 w X_3 - w^2 X_3' and G'' = -2 X_3 - 4 w X_3' - w^2 X_3''.
-    k, c, m = _matrices(system)
-    w = (2.0 * jnp.pi * frequencies_hz).reshape(-1)
-    z = k[None] - (w**2)[:, None, None] * m[None] + 1j * w[:, None, None] * c[None]
+    z, w, c, m = _dynamic_stiffness(system, frequencies_hz)
     inv = _inverse3(z)
     x = inv[:, :, 2]
     dz = 1j * c[None] - 2.0 * w[:, None, None] * m[None]

@@ -77,13 +77,12 @@ def _sine_model(system, g, first_order: bool, sweeps: bool = False, orbits: bool
     return jnp.where(g.sine_orbit[:, None], full, lin)
 
 
-def predict(theta, data: FitData, structure: Structure, orbits: bool = True,
-            drift: bool = False):
-    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,))] (complex); the
-    sine harmonics include the drifting force's terms (`drift_terms`). `orbits=False`: the
-    periodic-orbit records get their linearised model instead (a caller that has their
-    orbits already, `Problem.model_harmonics`). `drift`: each group's drift terms (R, H)
-    as a third element."""
+def predict(theta, data: FitData, structure: Structure, orbits: bool = True):
+    """Model per group: [(sine harmonics (R, H), FRF accelerance (L,), the sine harmonics'
+    drifting-force terms (R, H))] (complex; the first includes the third, `drift_terms`).
+    `orbits=False`: the periodic-orbit records get their linearised model instead (a
+    caller that has their orbits already, `Problem.model_harmonics`, which adds the
+    drift terms to them)."""
     out = []
     for gi, g in enumerate(data.groups):
         system = bsfs_jax.build_system(params_at(theta, data, structure, gi))
@@ -95,7 +94,7 @@ def predict(theta, data: FitData, structure: Structure, orbits: bool = True,
             sine = terms = jnp.zeros(g.sine_freq.shape, complex)
         frf = (linear_acceleration(system, g.frf_freq, jnp.ones(g.frf_freq.shape, complex))
                if g.frf_freq.shape[0] else jnp.zeros(0, complex))
-        out.append((sine, frf, terms) if drift else (sine, frf))
+        out.append((sine, frf, terms))
     return out
 
 
@@ -104,7 +103,7 @@ def residual(theta, data: FitData, structure: Structure):
     (theta - shift) / sigma (zero where a parameter has no prior; the shift is zero but in a
     randomised-maximum-likelihood refit)."""
     parts = []
-    for (sine, frf), g in zip(predict(theta, data, structure), data.groups):
+    for (sine, frf, _), g in zip(predict(theta, data, structure), data.groups):
         for model, meas, scale in ((sine, g.sine_acc, g.sine_scale),
                                    (frf, g.frf_acc, g.frf_scale)):
             d = meas - model
@@ -144,8 +143,7 @@ def residual_and_jacobian(theta, data: FitData, structure: Structure):
 
 @bsfs_jax.cached_jit
 def predictions(theta, data: FitData, structure: Structure, orbits: bool = True):
-    """`predict` with each group's drift terms as a third element."""
-    return predict(theta, data, structure, orbits, drift=True)
+    return predict(theta, data, structure, orbits)
 
 
 def static_compliance(theta, data: FitData, structure: Structure, group: int):

@@ -273,7 +273,8 @@ class Problem:
 
     # -- model and residual ----------------------------------------------------------------
     def predict(self, theta, fit_data=None):
-        """Model per speed group: [(sine harmonics (R, H), FRF accelerance (L,))]."""
+        """Model per speed group: [(sine harmonics (R, H), FRF accelerance (L,), the sines'
+        drift terms (R, H))] (`_model.predict`)."""
         return _model.predict(theta, self.fit_data if fit_data is None else fit_data,
                               self.structure)
 
@@ -348,7 +349,7 @@ class Problem:
         return [r[s][used[s]] for s in self.record_slices()]
 
     def per_record(self, preds):
-        """A prediction per group ([(sine (R, H), FRF (L,))], `_model.predict`) -> the model
+        """A prediction per group ([(sine (R, H), FRF (L,), ...)], `_model.predict`) -> the model
         values of each record in data order (numpy)."""
         out = []
         for i in range(len(self.data)):
