@@ -13,7 +13,7 @@ from bsfs_jax.design import OPENS_FRACTION  # the threshold of design.opens_join
 
 from ._forecast import ForecastError, Identified, Quantity, locate_peak
 from ._forecast_frc_checks import from_draws, from_probes, probe_steps
-from ._forecast_frc_draws import frc_exact
+from ._forecast_frc_draws import frc_points
 from ._forecast_modal import _modal
 from ._liftoff import linear_liftoff, nonlinear_liftoff
 from ._parameters import require_x64
@@ -28,59 +28,6 @@ MARGIN_HALF_WIDTHS = 4.0
 PROBES = 3  # least determined directions probed for the FRC quantities' second order
 
 
-# Each forecast evaluation is one compiled program that takes the identification as an
-# argument (`Coordinates`: arrays traced, fitted keys static): a cold `bsfs predict` compiles
-# each once instead of every primitive eagerly, and the coverage study's replicates share them.
-
-
-def _frc_gradients(coords, theta, force, specs) -> dict:
-    """{name: d(quantity)/dtheta} of the FRC quantities `specs` ((name, unit, scale, hint)
-    each) at their located points: the peak's frequency through the augmented system, its
-    amplitude and the folds' frequencies through the hyperplane system, in one program
-    vmapped over their hints. Forward mode throughout: the fitted parameters are few, and
-    reverse mode through the shooting residual's ODE solves made each program about
-    twice the size. (Before: one program per quantity, 4 x 7-10 s to compile on the
-    2-core machine; now two.)"""
-    import jax
-    import jax.numpy as jnp
-
-    out = {}
-    plane = [(name, h) for name, _, _, h in specs if name != "peak_frequency_hz"]
-    for name, _, _, h in specs:
-        if name == "peak_frequency_hz":
-            out[name] = np.asarray(_peak_frequency_gradient(coords, theta, force, h))
-    if plane:
-        hints = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[h for _, h in plane])
-        grads = np.asarray(_hyperplane_gradients(coords, theta, force, hints))
-        for k, (name, _) in enumerate(plane):
-            out[name] = grads[k, 0 if name == "peak_amplitude_um" else 1]
-    return out
-
-
-@bsfs_jax.cached_jit
-def _peak_frequency_gradient(coords, theta, force, hint):
-    import jax
-
-    from bsfs_jax.design import frc_peak_frequency_value
-
-    return jax.jacfwd(lambda th: frc_peak_frequency_value(coords.at(th), force, hint))(theta)
-
-
-@bsfs_jax.cached_jit
-def _hyperplane_gradients(coords, theta, force, hints):
-    """(k, 2, p): d(amplitude, frequency)/dtheta at each of the k stacked hints."""
-    import jax
-
-    from bsfs_jax.design import frc_point_values
-    from bsfs_jax.solvers import ImplicitForward
-
-    def one(hint):
-        return jax.jacfwd(lambda th: frc_point_values(coords.at(th), force, hint,
-                                                      ImplicitForward()))(theta)
-
-    return jax.vmap(one)(hints)
-
-
 def _folds(branch):
     """(fold_up, fold_down): the fold where an up-sweep jumps (the first in branch order,
     from the low end) and where a down-sweep jumps (the last); None where there is none."""
@@ -91,19 +38,10 @@ def _folds(branch):
 
 
 def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
-    import jax.numpy as jnp
 
-    from bsfs_jax.design import peak_hint_layout, point_hint
+    from bsfs_jax.design import point_hint
 
     params = ident.params_at(ident.theta)
-    theta = jnp.asarray(ident.theta, float)
-    # Where the curve is continued by shooting its peak's layout is known before the
-    # search: the peak frequency's gradient program (the forecast's largest) compiles on
-    # the second core while the curve is continued.
-    layout = peak_hint_layout(params, force, settings, start_hz=start, stop_hz=stop)
-    if layout is not None:
-        _peak_frequency_gradient.prefetch_now(ident.coordinates, theta,
-                                              jnp.asarray(force, float), layout)
     hint, branch = locate_peak(params, force, start, stop, settings)
     shooting = type(branch.method).__name__ == "Shooting"
     # The probes are continued by the method that served the estimate (no failed
@@ -111,7 +49,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     settings = dataclasses.replace(settings, frc_method="shooting") if shooting else (
         dataclasses.replace(settings, frc_method="hb", frc_harmonics=branch.method.harmonics))
     # (name, unit, scale, hint); the value is the located point's (the implicit functions
-    # return it unchanged and attach only derivatives: `_frc_gradient`).
+    # return it unchanged and attach only derivatives: `frc_points`).
     specs = [("peak_frequency_hz", "Hz", 1.0, hint), ("peak_amplitude_um", "um", 1e6, hint)]
     up, down = _folds(branch)
     for name, fold in (("fold_up_hz", up), ("fold_down_hz", down)):
@@ -127,7 +65,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
     # itself there decides (`from_draws`); where it could not be followed at some draw,
     # the probes decide and the quantity says at how many draws the model failed. The
     # probes' FRCs are also the figure's band.
-    exact = frc_exact(ident, force, specs)
+    exact, gradients = frc_points(ident, force, specs, central=shooting)
     steps = probe_steps(ident, min(PROBES, len(ident.names)))
     curves, read = {"estimate": branch}, {}
     jobs = [(i, sgn) for i in range(len(steps)) for sgn in (1.0, -1.0)]
@@ -136,7 +74,7 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
         read[(i, sgn)] = {name: None if br is None else _read(name, br)
                           for name, *_ in specs}
     out = []
-    grads = _frc_gradients(ident.coordinates, theta, jnp.asarray(force, float), specs)
+    grads = gradients()
     for name, unit, scale, h in specs:
         value = _read(name, branch)
         grad = grads[name]
@@ -153,8 +91,9 @@ def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
             q.extra["amplitude_um"] = fold.amplitude * 1e6  # where the figure marks it
         if name == "peak_frequency_hz" and shooting:
             q.extra["note"] = ("the joints lose contact at the peak (the curve is continued "
-                               "by shooting): the peak frequency's second derivatives are "
-                               "approximate there, its gradient to about 2 %")
+                               "by shooting): the peak frequency's gradient is by central "
+                               "differences of the peak followed to +-0.5 standard "
+                               "deviations of each fitted parameter")
         out.append(q)
     curves = {k: v for k, v in curves.items() if v is not None}
     for name, fold in (("fold_up_hz", up), ("fold_down_hz", down)):

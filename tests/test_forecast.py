@@ -330,7 +330,7 @@ def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders)
     c_b is 50 % up the folds are gone (the continuation finds none) and following them
     fails instead of giving a value; the peak is still followed there."""
     from bsfs_jax.design import point_hint
-    from identification._forecast_frc_draws import points_at_draws
+    from identification._forecast_frc_draws import _calls, _points_at_draws, points_at_draws
     from identification._forecast_run import _folds
 
     ident_dir, _, _ = folders
@@ -345,8 +345,26 @@ def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders)
     i = list(ident.names).index("c_b")
     thetas = [ident.draws[0], ident.draws[1]] + [ident.theta + np.log(f) * np.eye(5)[i]
                                                  for f in (1.2, 1.5)]
-    out = points_at_draws(dataclasses.replace(ident, draws=np.array(thetas)), 100.0, hints,
-                          [True, False, False])
+    # and +-0.5 sd along c_b and c_s: central differences of the followed points
+    j = list(ident.names).index("c_s")
+    h = 0.5 * np.sqrt(np.diag(ident.covariance))[[i, j]]
+    thetas += [ident.theta + s * h[m] * np.eye(5)[c] for s in (1, -1)
+               for m, c in enumerate((i, j))]
+    at = dataclasses.replace(ident, draws=np.array(thetas))
+    calls = _calls(at, 100.0, hints, [True, False, False])
+    first = _points_at_draws(*calls[0])
+    out = points_at_draws(at, 100.0, hints, [True, False, False], calls, first)
+    # The gradients from the same program (implicit, on the followed points' extended
+    # system) against those central differences: the amplitude's and the folds'
+    # frequencies closely; the peak frequency's, whose implicit derivative needs second
+    # derivatives of a shooting residual through contact loss, to a few per cent (which is
+    # why the forecast takes that one by central differences where joints open).
+    grads = np.asarray(first[1])[:, :, [i, j]]
+    central = (out[:, 4:6] - out[:, 6:8]) / (2.0 * h[None, :, None])
+    np.testing.assert_allclose(grads[0, 0], central[0, :, 0], rtol=2e-3)
+    np.testing.assert_allclose(grads[1:, 1], central[1:, :, 1], rtol=2e-3)
+    np.testing.assert_allclose(grads[0, 1], central[0, :, 1], rtol=0.05)
+    thetas = thetas[:4]
     for k, theta in enumerate(thetas):
         _, fresh = locate_frc_peak(ident.params_at(theta), 100.0, settings,
                                    start_hz=band[0], stop_hz=band[1])

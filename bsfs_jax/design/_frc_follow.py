@@ -100,6 +100,29 @@ def follow_start(params, force_n, hint, peak_weight):
     return x0, lu, piv, amplitude_ref
 
 
+def follow_gradient(params_at, theta, force_n, hint, peak_weight, start):
+    """(2, p): d(nut amplitude [m], frequency [Hz]) / d theta of the located point `hint`
+    at `params_at(theta)` (theta: the estimate at which `start` was made, p values). The
+    point moves with theta on E(x; theta) = 0, so by the implicit function theorem
+    dx/dtheta = -E_x^-1 E_theta, with `start`'s factored E_x (exact there) and E_theta in
+    forward mode (p tangents); the amplitude's total derivative adds A_v dv/dtheta to its
+    explicit A_theta. At the peak this is the peak amplitude's and the peak frequency's
+    gradient, at a fold the fold frequency's (the Moore-Spence derivative): the same
+    values as the hyperplane system's (`frc_point_values`) and the peak's augmented one
+    (`frc_peak_frequency_value`), from the system the draws are followed with."""
+    x0, lu, piv, amplitude_ref = start
+    n = x0.shape[0] // 2
+
+    def at(th):
+        return _system(_functions(params_at(th), force_n, hint), hint, peak_weight,
+                       amplitude_ref)(x0)
+
+    e_theta, a_theta = jax.jacfwd(at)(theta)
+    dx = -jax.scipy.linalg.lu_solve((lu, piv), e_theta)
+    a_v = jax.jacfwd(_functions(params_at(theta), force_n, hint)[1])(x0[:n])
+    return jnp.stack([a_theta + a_v @ dx[:n], dx[n - 1] * hint.p_scale])
+
+
 def follow_point(params, force_n, hint, peak_weight, start):
     """(nut amplitude [m], frequency [Hz], converged) of the located point `hint` followed
     to `params` by chord Newton from `start` (`follow_start` at the estimate). Traceable
