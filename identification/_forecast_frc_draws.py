@@ -70,9 +70,12 @@ def central_steps(ident: Identified) -> np.ndarray:
     """(2p, p): the estimate moved by +-CENTRAL_SD standard deviations along each fitted
     coordinate, the lanes whose followed peak gives the peak frequency's central
     differences (`frc_points`)."""
-    step = CENTRAL_SD * np.sqrt(np.diag(ident.covariance))
-    moves = np.diag(step)
+    moves = np.diag(_central_step(ident))
     return ident.theta + np.concatenate([moves, -moves])
+
+
+def _central_step(ident: Identified) -> np.ndarray:
+    return CENTRAL_SD * np.sqrt(np.diag(ident.covariance))
 
 
 def _calls(ident: Identified, force: float, hints, peak, central: bool = False) -> list:
@@ -119,10 +122,11 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
     - exact: {name: callable returning the quantity at each draw (m, Hz: before the
       quantity's `scale`)} for `_checked`'s `exact`, every point followed in one batch on
       the first call; {} where the identification has no draws;
-    - gradients(): {name: d(quantity)/dtheta at the estimate (m, Hz per fitted unit)},
-      by the implicit function theorem (`follow_gradient`); with `central`, the peak
-      frequency's by central differences of the followed peak instead (module
-      docstring), where the peak was followed to every step."""
+    - gradients(): ({name: d(quantity)/dtheta at the estimate (m, Hz per fitted unit)},
+      whether the peak frequency's is by central differences): by the implicit function
+      theorem (`follow_gradient`); with `central`, the peak frequency's by central
+      differences of the followed peak instead (module docstring), where the peak was
+      followed to every step (else the implicit one, and False)."""
     hints, peak, where = [], [], {}
     for name, _, _, hint in specs:
         is_peak = name in ("peak_frequency_hz", "peak_amplitude_um")
@@ -147,9 +151,9 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
             k = peak.index(True)
             f, ok = lanes[k, :2 * p, 1], lanes[k, :2 * p, 2] > 0.5
             if np.all(ok):
-                step = np.diag(central_steps(ident)[:p] - ident.theta)
-                out["peak_frequency_hz"] = (f[:p] - f[p:]) / (2.0 * step)
-        return out
+                out["peak_frequency_hz"] = (f[:p] - f[p:]) / (2.0 * _central_step(ident))
+                return out, True
+        return out, False
 
     if ident.draws is None:
         return {}, gradients
