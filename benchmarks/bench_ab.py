@@ -28,7 +28,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _cli import ROOT, cold_warm_runs, write_result  # noqa: E402
-from bench_cold import COMMANDS  # noqa: E402
+from bench_cold import COMMANDS, _identified  # noqa: E402
 
 
 def _git(*args) -> str:
@@ -40,11 +40,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="commit to compare against")
     ap.add_argument("--only", default="map", help="comma-separated bench_cold.py names "
-                    "(commands with an --out folder and no prepared input; default map)")
+                    "(commands with an --out folder; predict reads an identification made "
+                    "once, untimed, by the head tree; default map)")
     ap.add_argument("--rounds", type=int, default=2)
     args = ap.parse_args(argv)
-    table = {name: cmd for name, cmd, _, out in COMMANDS
-             if out is True and not any("{" in a for a in cmd)}
+    table = {name: cmd for name, cmd, _, out in COMMANDS if out is True}
     names = [n.strip() for n in args.only.split(",")]
     unknown = [n for n in names if n not in table]
     if unknown:
@@ -57,6 +57,13 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="bsfs-ab-") as td:
         tmp = Path(td)
         tree = tmp / "base"
+        shown = {n: list(table[n]) for n in names}
+        for n in names:  # the prepared input (`bench_cold._identified`), made once
+            if "{identified}" in table[n]:
+                table[n] = [_identified(tmp) if a == "{identified}" else a
+                            for a in table[n]]
+                shown[n] = ["out/preload-loss" if a == "{identified}" else a
+                            for a in shown[n]]
         _git("worktree", "add", "--detach", str(tree), base)
         try:
             for name in names:
@@ -72,7 +79,7 @@ def main(argv=None) -> int:
                                              for key in ("wall_s", "compiles")])
                 med = {w: [statistics.median(t[i] for t in times[w]) for i in (0, 2)]
                        for w in times}
-                rows.append(dict(name=name, command="bsfs " + " ".join(table[name]),
+                rows.append(dict(name=name, command="bsfs " + " ".join(shown[name]),
                                  base=times["base"], head=times["head"], median=med))
         finally:
             _git("worktree", "remove", "--force", str(tree))

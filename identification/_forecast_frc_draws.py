@@ -10,12 +10,13 @@ Newton failure) is given NaN, not a value: the quantity then falls back to the p
 quadratic model and says at how many draws the model failed.
 
 The same program gives each point's gradient at the estimate, from the extended system
-it follows the point with (`bsfs_jax.design.follow_gradient`: implicit differentiation,
-E's Jacobian already factored for the chord Newton). Where the joints lose contact at the
-peak (the curve continued by shooting) the force is only C^1, and the second derivatives
-of the shooting residual that the peak frequency's implicit gradient needs are
-approximate: on the bundled worn drive at 100 N it was 1.6-2.8 % off central differences
-of the located peak on the three dampers (the augmented system used before: 0.1-1.6 %).
+it follows the point with (`bsfs_jax.design.follow_start_and_gradient`: implicit
+differentiation with E's Jacobian, the chord Newton's, from the same forward pass).
+Where the joints lose contact at the peak (the curve continued by shooting) the force is
+only C^1, and the second derivatives of the shooting residual that the peak frequency's
+implicit gradient needs are approximate: on the bundled worn drive at 100 N it was
+1.6-2.8 % off central differences of the located peak on the three dampers (the
+augmented system used before: 0.1-1.6 %).
 There the peak frequency's gradient is taken by central differences of the followed peak
 instead (`central=True`): 2p more lanes, at the estimate +-0.5 standard deviations of
 each coordinate (the peak followed to within about 5e-5 Hz), in the same program. The
@@ -44,24 +45,21 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
     """((k, n, 3), (k, 2, p)): (nut amplitude [m], frequency [Hz], converged) of each of
     the k stacked located points `hints` (`weights`: 1 the peak, 0 a fold) at each row of
     `thetas`, followed from the estimate `theta`; and each point's gradient
-    d(amplitude, frequency)/dtheta at the estimate (`follow_gradient`, from the same
+    d(amplitude, frequency)/dtheta at the estimate (`follow_start_and_gradient`, from the same
     extended system and its factored Jacobian)."""
     import jax
     import jax.numpy as jnp
 
-    from bsfs_jax.design import follow_gradient, follow_point, follow_start
-
-    params = coords.at(theta)
+    from bsfs_jax.design import follow_point, follow_start_and_gradient
 
     def one(hint, weight):
-        start = follow_start(params, force, hint, weight)
+        start, gradient = follow_start_and_gradient(coords.at, theta, force, hint, weight)
 
         def lane(th):
             amp, freq, ok = follow_point(coords.at(th), force, hint, weight, start)
             return jnp.stack([amp, freq, ok.astype(float)])
 
-        return (jax.vmap(lane)(thetas),
-                follow_gradient(coords.at, theta, force, hint, weight, start))
+        return jax.vmap(lane)(thetas), gradient
 
     return jax.vmap(one)(hints, weights)
 
@@ -124,7 +122,7 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
       the first call; {} where the identification has no draws;
     - gradients(): ({name: d(quantity)/dtheta at the estimate (m, Hz per fitted unit)},
       whether the peak frequency's is by central differences): by the implicit function
-      theorem (`follow_gradient`); with `central`, the peak frequency's by central
+      theorem (`follow_start_and_gradient`); with `central`, the peak frequency's by central
       differences of the followed peak instead (module docstring), where the peak was
       followed to every step (else the implicit one, and False)."""
     hints, peak, where = [], [], {}

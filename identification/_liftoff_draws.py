@@ -66,39 +66,42 @@ def _liftoff_lanes(coords, theta, thetas, f_star, grad, hint, joint):
     from bsfs_jax.design import follow_start, follow_to
 
     x0, lu, piv, amplitude_ref = follow_start(coords.at(theta), f_star, hint, 1.0)
+    n = x0.shape[0] // 2
 
     def lane(th):
         params = coords.at(th)
-        n = x0.shape[0] // 2
 
         def m(force, x_from):
             x, ok = follow_to(params, force, hint, 1.0, (x_from, lu, piv, amplitude_ref))
             return min_deformation_at(params, force, hint, x[:n], joint), x, ok
 
-        f0 = f_star + jnp.dot(grad, th - theta)
-        f1 = f0 * (1.0 + FIRST_STEP)
-        m0, x_a, ok0 = m(f0, x0)
-        m1, x1, ok1 = m(f1, x_a)
-        scale = jnp.abs(m0) + jnp.abs(m1)
+        # One loop evaluates m at every force, the secant's two starting forces included
+        # (pass 0: the delta prediction f0; pass 1: f0 (1 + FIRST_STEP); then the secant
+        # steps): m is traced, and compiled, once instead of three times.
+        f_first = f_star + jnp.dot(grad, th - theta)
 
-        def stopped(f0, m0, f1, m1):
-            return (jnp.abs(m1) < LIFTOFF_RTOL * scale) | (
-                jnp.abs(f1 - f0) < LIFTOFF_FTOL * jnp.abs(f1))
+        def stopped(fa, ma, fb, mb, scale):
+            return (jnp.abs(mb) < LIFTOFF_RTOL * scale) | (
+                jnp.abs(fb - fa) < LIFTOFF_FTOL * jnp.abs(fb))
 
         def cond(carry):
-            k, f0, m0, f1, m1, _, ok = carry
-            return (k < LIFTOFF_STEPS) & ok & ~stopped(f0, m0, f1, m1)
+            j, fa, ma, fb, mb, scale, _, ok = carry
+            return (j < 2) | ((j - 2 < LIFTOFF_STEPS) & ok & ~stopped(fa, ma, fb, mb, scale))
 
         def body(carry):
-            k, f0, m0, f1, m1, x1, ok = carry
-            f2 = f1 - m1 * (f1 - f0) / (m1 - m0)
-            m2, x2, ok2 = m(f2, x1)
-            return k + 1, f1, m1, f2, m2, x2, ok & ok2 & jnp.isfinite(f2)
+            j, fa, ma, fb, mb, scale, x, ok = carry
+            secant = fb - mb * (fb - fa) / (mb - ma)
+            f = jnp.where(j == 0, f_first, jnp.where(j == 1, fb * (1.0 + FIRST_STEP), secant))
+            m_f, x_f, ok_f = m(f, x)
+            scale = jnp.where(j == 1, jnp.abs(mb) + jnp.abs(m_f), scale)
+            fa, ma = jnp.where(j == 0, f, fb), jnp.where(j == 0, m_f, mb)
+            return j + 1, fa, ma, f, m_f, scale, x_f, ok & ok_f & jnp.isfinite(f)
 
-        carry = (0, f0, m0, f1, m1, x1, ok0 & ok1)
-        k, f0, m0, f1, m1, _, ok = jax.lax.while_loop(cond, body, carry)
-        return jnp.stack([f1, (ok & stopped(f0, m0, f1, m1)).astype(float),
-                          ok.astype(float), k.astype(float)])
+        nan = jnp.asarray(jnp.nan, x0.dtype)
+        carry = (0, nan, nan, nan, nan, nan, x0, jnp.asarray(True))
+        j, fa, ma, fb, mb, scale, _, ok = jax.lax.while_loop(cond, body, carry)
+        return jnp.stack([fb, (ok & stopped(fa, ma, fb, mb, scale)).astype(float),
+                          ok.astype(float), (j - 2).astype(float)])
 
     return jax.vmap(lane)(thetas)
 

@@ -101,12 +101,15 @@ def amplitude_sens(params):
 
 
 def test_amplitude_gradient_by_shooting_equals_harmonic_balance(params, amplitude_sens):
-    """The same exact gradient from the other orbit method (the default, shooting)."""
-    shoot = sensitivities("amplitude", params, ORBIT_NAMES,
+    """The same exact gradient from the other orbit method (the default, shooting), over
+    every design parameter (one reverse pass: the program of the design-study notebook,
+    which the suite's compilation cache then shares), compared on the subset."""
+    shoot = sensitivities("amplitude", params, DESIGN_PARAMETERS,
                           settings=OrbitSettings(transient_periods=0), **OP)
     hb = amplitude_sens[0]
     assert shoot.value == pytest.approx(hb.value, rel=1e-9)
-    np.testing.assert_allclose(shoot.gradient, hb.gradient, rtol=1e-6,
+    subset = shoot.gradient[[DESIGN_PARAMETERS.index(n) for n in ORBIT_NAMES]]
+    np.testing.assert_allclose(subset, hb.gradient, rtol=1e-6,
                                atol=1e-6 * np.max(np.abs(hb.gradient)))
 
 

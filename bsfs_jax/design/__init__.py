@@ -24,9 +24,9 @@ if TYPE_CHECKING:
     from ._crosscheck import PAPER_TRENDS as PAPER_TRENDS
     from ._crosscheck import crosscheck_markdown as crosscheck_markdown
     from ._crosscheck import paper_crosscheck as paper_crosscheck
-    from ._frc_follow import follow_gradient as follow_gradient
     from ._frc_follow import follow_point as follow_point
     from ._frc_follow import follow_start as follow_start
+    from ._frc_follow import follow_start_and_gradient as follow_start_and_gradient
     from ._frc_follow import follow_to as follow_to
     from ._frc_follow import orbit_samples_at as orbit_samples_at
     from ._gradcheck import FD_TOLERANCE as FD_TOLERANCE
@@ -91,9 +91,9 @@ _LAZY = {
     "optimization_start": "._optimize",
     "optimize": "._optimize",
     "verify_by_simulation": "._optimize",
-    "follow_gradient": "._frc_follow",
     "follow_point": "._frc_follow",
     "follow_start": "._frc_follow",
+    "follow_start_and_gradient": "._frc_follow",
     "follow_to": "._frc_follow",
     "orbit_samples_at": "._frc_follow",
     "OPENS_FRACTION": "._orbit",

@@ -83,44 +83,55 @@ def _system(functions, hint, peak_weight, amplitude_ref):
     return extended
 
 
-def follow_start(params, force_n, hint, peak_weight):
-    """(x0, lu, piv, amplitude_ref) at the located point: x0 = (v*, t0) with t0 the
-    tangent of R_v at v* scaled to t* . t0 = 1, and E's Jacobian there, factored."""
-    functions = _functions(params, force_n, hint)
+def _located(functions, hint):
+    """(x0, amplitude_ref): x0 = (v*, t0) at the located point, t0 the tangent of R_v at
+    v* scaled to t* . t0 = 1, and the nut amplitude there."""
     residual, amplitude = functions
     v_star = jax.lax.stop_gradient(hint.v)
     t_star = jax.lax.stop_gradient(hint.tangent)
     e_last = jnp.zeros(v_star.shape[0]).at[-1].set(1.0)
     t0 = jnp.linalg.solve(jnp.concatenate([jax.jacfwd(residual)(v_star), t_star[None]]),
                           e_last)
-    amplitude_ref = amplitude(v_star)
+    return jnp.concatenate([v_star, t0]), amplitude(v_star)
+
+
+def follow_start(params, force_n, hint, peak_weight):
+    """(x0, lu, piv, amplitude_ref) at the located point (`_located`), with E's Jacobian
+    there, factored."""
+    functions = _functions(params, force_n, hint)
+    x0, amplitude_ref = _located(functions, hint)
     extended = _system(functions, hint, peak_weight, amplitude_ref)
-    x0 = jnp.concatenate([v_star, t0])
     lu, piv = jax.scipy.linalg.lu_factor(jax.jacfwd(lambda x: extended(x)[0])(x0))
     return x0, lu, piv, amplitude_ref
 
 
-def follow_gradient(params_at, theta, force_n, hint, peak_weight, start):
-    """(2, p): d(nut amplitude [m], frequency [Hz]) / d theta of the located point `hint`
-    at `params_at(theta)` (theta: the estimate at which `start` was made, p values). The
-    point moves with theta on E(x; theta) = 0, so by the implicit function theorem
-    dx/dtheta = -E_x^-1 E_theta, with `start`'s factored E_x (exact there) and E_theta in
-    forward mode (p tangents); the amplitude's total derivative adds A_v dv/dtheta to its
-    explicit A_theta. At the peak this is the peak amplitude's and the peak frequency's
-    gradient, at a fold the fold frequency's (the Moore-Spence derivative): the same
-    values as the hyperplane system's (`frc_point_values`) and the peak's augmented one
-    (`frc_peak_frequency_value`), from the system the draws are followed with."""
-    x0, lu, piv, amplitude_ref = start
-    n = x0.shape[0] // 2
+def follow_start_and_gradient(params_at, theta, force_n, hint, peak_weight):
+    """(start, gradient): `follow_start` at `params_at(theta)` (theta: p values, the
+    estimate), and the (2, p) gradient d(nut amplitude [m], frequency [Hz]) / d theta of
+    the located point `hint` there.
 
-    def at(th):
-        return _system(_functions(params_at(th), force_n, hint), hint, peak_weight,
-                       amplitude_ref)(x0)
+    The point moves with theta on E(x; theta) = 0, so by the implicit function theorem
+    dx/dtheta = -E_x^-1 E_theta; the amplitude's total derivative adds A_v dv/dtheta to
+    its explicit A_theta. E_x, E_theta, A_x and A_theta come from one forward-mode pass
+    over (x, theta) together (2n + p tangents), so that a program holds one
+    second-order instance of the orbit's integration for the factored Jacobian and the
+    gradient (separate passes traced and compiled it twice). At the peak this is the
+    peak amplitude's and the peak frequency's gradient, at a fold the fold frequency's
+    (the Moore-Spence derivative): the same values as the hyperplane system's
+    (`frc_point_values`) and the peak's augmented one (`frc_peak_frequency_value`)."""
+    x0, amplitude_ref = _located(_functions(params_at(theta), force_n, hint), hint)
+    m = x0.shape[0]
+    n = m // 2
 
-    e_theta, a_theta = jax.jacfwd(at)(theta)
-    dx = -jax.scipy.linalg.lu_solve((lu, piv), e_theta)
-    a_v = jax.jacfwd(_functions(params_at(theta), force_n, hint)[1])(x0[:n])
-    return jnp.stack([a_theta + a_v @ dx[:n], dx[n - 1] * hint.p_scale])
+    def extended(z):
+        functions = _functions(params_at(z[m:]), force_n, hint)
+        return _system(functions, hint, peak_weight, amplitude_ref)(z[:m])
+
+    e_z, a_z = jax.jacfwd(extended)(jnp.concatenate([x0, jnp.asarray(theta, x0.dtype)]))
+    lu, piv = jax.scipy.linalg.lu_factor(e_z[:, :m])
+    dx = -jax.scipy.linalg.lu_solve((lu, piv), e_z[:, m:])
+    gradient = jnp.stack([a_z[m:] + a_z[:n] @ dx[:n], dx[n - 1] * hint.p_scale])
+    return (x0, lu, piv, amplitude_ref), gradient
 
 
 def follow_point(params, force_n, hint, peak_weight, start):
@@ -128,9 +139,9 @@ def follow_point(params, force_n, hint, peak_weight, start):
     to `params` by chord Newton from `start` (`follow_start` at the estimate). Traceable
     and vmappable over `params`; a lane that does not converge in `FOLLOW_MAX_STEPS`
     steps, or whose residual stays above `FOLLOW_RESIDUAL_TOL`, says so."""
-    x, ok = follow_to(params, force_n, hint, peak_weight, start)
+    x, ok, amplitude = _follow(params, force_n, hint, peak_weight, start)
     n = x.shape[0] // 2
-    return _functions(params, force_n, hint)[1](x[:n]), x[n - 1] * hint.p_scale, ok
+    return amplitude, x[n - 1] * hint.p_scale, ok
 
 
 def follow_to(params, force_n, hint, peak_weight, start):
@@ -138,6 +149,11 @@ def follow_to(params, force_n, hint, peak_weight, start):
     unknowns and the scaled frequency). `start` may carry another first point in place of
     the located one (`follow_start`'s x0: the chord matrix stays the estimate's), e.g. the
     point followed to a nearby force; its convergence test is relative to that point."""
+    return _follow(params, force_n, hint, peak_weight, start)[:2]
+
+
+def _follow(params, force_n, hint, peak_weight, start):
+    """(x, converged, nut amplitude at x): `follow_to`'s point and its amplitude."""
     x0, lu, piv, amplitude_ref = start
     functions = _functions(params, force_n, hint)
     extended = _system(functions, hint, peak_weight, amplitude_ref)
@@ -146,36 +162,34 @@ def follow_to(params, force_n, hint, peak_weight, start):
     # amplitude is not its quantity (and moves along the fold's null direction)
     step_tol = FOLLOW_STEP_TOL / jnp.stack([1.0, peak_weight])
 
-    # The loop carries x, its (frequency, amplitude) relative to the first point's and
-    # E(x): each pass tests the point it holds (E small, and the step that led there
-    # moved it by less than FOLLOW_STEP_TOL) before stepping on, so E's own pass
-    # gives the amplitude (no third integration per step).
-    def measured(x):
-        e, a = extended(x)
-        return e, jnp.stack([x[n - 1] / x0[n - 1], a / amplitude_ref])
-
     def converged(e, q, q_before, x):
         a = jnp.abs(e)
         return (jnp.all(jnp.abs(q - q_before) <= step_tol)
                 & (jnp.max(a[:n - 1]) <= FOLLOW_RESIDUAL_TOL)
                 & (jnp.max(a[n - 1:]) <= FOLLOW_EXTENDED_TOL) & jnp.all(jnp.isfinite(x)))
 
-    def cond(carry):
-        k, x, e, q, q_before = carry
-        return (k < FOLLOW_MAX_STEPS) & ~converged(e, q, q_before, x)
-
+    # Each pass steps from the point it holds (pass 0: a zero step, the first point) and
+    # evaluates E there, which also gives the amplitude and the point's (frequency,
+    # amplitude) relative to the first point's, q. After the pass whose point has
+    # converged (E small, and the step that led there moved it by less than
+    # FOLLOW_STEP_TOL), or that reached FOLLOW_MAX_STEPS steps, one more pass takes the
+    # point one step further (the test bounds the last step's move, this step's is
+    # smaller again) and ends the loop. E is traced, and compiled, once: in the loop.
     def body(carry):
-        k, x, e, q, _ = carry
+        k, x, e, q, _, stop, ok, _ = carry
         x_new = x - jax.scipy.linalg.lu_solve((lu, piv), e)
-        e_new, q_new = measured(x_new)
-        return k + 1, x_new, e_new, q_new, q
+        e_new, a_new = extended(x_new)
+        q_new = jnp.stack([x_new[n - 1] / x0[n - 1], a_new / amplitude_ref])
+        ok_new = jnp.where(stop, ok & jnp.all(jnp.isfinite(x_new)),
+                           converged(e_new, q_new, q, x_new))
+        return (k + 1, x_new, e_new, q_new, a_new,
+                stop | ok_new | (k >= FOLLOW_MAX_STEPS), ok_new, stop)
 
-    e0, q0 = measured(x0)
-    _, x, e, q, q_before = jax.lax.while_loop(cond, body, (0, x0, e0, q0, q0 + jnp.inf))
-    # the point one step further (E at x is known): the test above bounds the last
-    # step's move, this step's is smaller again
-    x_last = x - jax.scipy.linalg.lu_solve((lu, piv), e)
-    return x_last, converged(e, q, q_before, x) & jnp.all(jnp.isfinite(x_last))
+    inf = jnp.full(2, jnp.inf, x0.dtype)
+    carry = (0, x0, jnp.zeros_like(x0), inf, amplitude_ref, jnp.asarray(False),
+             jnp.asarray(False), jnp.asarray(False))
+    _, x, _, _, amplitude, _, ok, _ = jax.lax.while_loop(lambda c: ~c[-1], body, carry)
+    return x, ok, amplitude
 
 
 def orbit_samples_at(params, force_n, hint, v):
