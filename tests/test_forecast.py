@@ -81,7 +81,7 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
 
     rng = np.random.default_rng(7)
     draws = rng.multivariate_normal(ident.theta, ident.covariance, size=4000)
-    mc = np.asarray(jax.vmap(fn)(jnp.asarray(draws)))
+    mc = np.asarray(jax.jit(jax.vmap(fn))(jnp.asarray(draws)))  # one program
     methods = {}
     for k, name in enumerate(NAMES[:3]):
         x, sd = q[name], np.std(mc[:, k])
@@ -97,7 +97,7 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
             # The value is the draws' median; the model at the estimate is `plug_in`, off
             # it by about the curvature term tr(H C) / 2.
             assert x["value"] == pytest.approx(med, abs=0.05 * (hi - lo)), name
-            shift = 0.5 * np.trace(np.asarray(jax.hessian(lambda t: fn(t)[k])(
+            shift = 0.5 * np.trace(np.asarray(jax.jit(jax.hessian(lambda t: fn(t)[k]))(
                 jnp.asarray(ident.theta))) @ ident.covariance)
             assert x["value"] - x["plug_in"] == pytest.approx(shift, rel=0.3), name
             assert abs(shift) > 0.2 * x["std"], name
@@ -133,7 +133,7 @@ def test_bootstrap_refits_carry_the_estimates_own_skew(folders, tmp_path):
     def damping(th):
         return bsfs_jax.modes(bsfs_jax.build_system(ident.params_at(th))).damping_ratios[0]
 
-    exact = np.asarray(jax.vmap(damping)(jnp.asarray(ident.draws)))
+    exact = np.asarray(jax.jit(jax.vmap(damping))(jnp.asarray(ident.draws)))
     lo, hi = np.percentile(exact, [2.5, 97.5])
     assert zeta["ci95"] == pytest.approx([lo, hi], abs=1e-6 * (hi - lo))
     assert zeta["quadratic_ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
@@ -220,7 +220,7 @@ def test_posterior_draws_replace_the_gaussian_ones_where_the_delta_is_doubtful(f
     def damping(th):
         return bsfs_jax.modes(bsfs_jax.build_system(ident.params_at(th))).damping_ratios[0]
 
-    direct = np.asarray(jax.vmap(damping)(jnp.asarray(theta)))
+    direct = np.asarray(jax.jit(jax.vmap(damping))(jnp.asarray(theta)))
     lo, hi = np.percentile(direct, [2.5, 97.5])
     assert zeta.ci95 == pytest.approx([lo, hi], abs=1e-6 * (hi - lo))
     assert zeta.extra["quadratic_ci95"] == pytest.approx([lo, hi], abs=0.05 * (hi - lo))
