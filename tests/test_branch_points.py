@@ -57,23 +57,19 @@ def test_fold_frequencies_have_exact_gradients(base):
     def value(th, h):
         return fold_frequency_value(with_values(p, NAMES, th), 100.0, h)
 
-    # Each derivative as one compiled program (jit of grad, as the design metrics do):
-    # outside a jit the implicit function theorem's pieces run op by op (about 400 small
-    # programs compiled per test).
-    rev = np.stack([jax.jit(jax.grad(value))(theta, h) for h in hints])
-    fwd = np.stack([jax.jit(jax.jacfwd(lambda th, h: fold_frequency_value(
-        with_values(p, NAMES, th), 100.0, h, ImplicitForward())))(theta, h) for h in hints])
+    rev = np.stack([jax.grad(value)(theta, h) for h in hints])
+    fwd = np.stack([jax.jacfwd(lambda th, h=h: fold_frequency_value(
+        with_values(p, NAMES, th), 100.0, h, ImplicitForward()))(theta) for h in hints])
     np.testing.assert_allclose(fwd, rev, rtol=1e-8)
-    assert [float(jax.jit(value)(theta, h)) for h in hints] == pytest.approx([b.p for b in folds],
+    assert [float(value(theta, h)) for h in hints] == pytest.approx([b.p for b in folds],
                                                                      rel=1e-12)
     # The forecast's one program for the peak amplitude and the folds (vmapped over the
     # stacked hints, forward mode) gives the same derivatives.
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), hint, *hints)
-    both = np.asarray(jax.jit(jax.vmap(lambda h: jax.jacfwd(lambda th: frc_point_values(
-        with_values(p, NAMES, th), 100.0, h, ImplicitForward()))(theta)))(stacked))
+    both = np.asarray(jax.vmap(lambda h: jax.jacfwd(lambda th: frc_point_values(
+        with_values(p, NAMES, th), 100.0, h, ImplicitForward()))(theta))(stacked))
     np.testing.assert_allclose(both[1:, 1], rev, rtol=1e-8)
-    amp = jax.jit(jax.grad(lambda th, h: frc_peak_value(with_values(p, NAMES, th), 100.0,
-                                                        h)))(theta, hint)
+    amp = jax.grad(lambda th: frc_peak_value(with_values(p, NAMES, th), 100.0, hint))(theta)
     np.testing.assert_allclose(both[0, 0], amp, rtol=1e-8)
     assert np.all(np.abs(amp) > 0)
 
@@ -97,8 +93,8 @@ def test_peak_frequency_has_an_exact_gradient(base):
     def value(th):
         return frc_peak_frequency_value(with_values(p, NAMES, th), 30.0, hint)
 
-    assert float(jax.jit(value)(theta)) == pytest.approx(branch.peak.p, rel=1e-12)
-    grad = np.asarray(jax.jit(jax.jacfwd(value))(theta))
+    assert float(value(theta)) == pytest.approx(branch.peak.p, rel=1e-12)
+    grad = np.asarray(jax.jacfwd(value)(theta))
     fd = _central(lambda th: float(_located(p, th, 30.0, settings)[0].frequency_hz), theta)
     np.testing.assert_allclose(grad, fd, rtol=1e-4)
     assert np.all(np.abs(grad) > 0)

@@ -21,6 +21,7 @@ derivatives of R and is exact at the located peak.
 """
 
 import dataclasses
+import functools
 
 import diffrax as dfx
 import equinox as eqx
@@ -275,6 +276,21 @@ def locate_frc_peak_near(params, force_n, settings: OrbitSettings, near, *, back
     return point_hint(branch.peak.point, branch), branch
 
 
+def _one_program(fn):
+    """`fn(params, force_n, hint, ...)` as one compiled program (`eqx.filter_jit`), the
+    force traced (a float would be static: a program per force). Called outside a jit (a
+    test, a notebook, a user's `jax.grad`), the implicit function theorem's pieces would
+    otherwise run op by op: about 900 small programs compiled for the two fold gradients
+    and the peak's of tests/test_branch_points.py."""
+    jitted = eqx.filter_jit(fn)
+
+    @functools.wraps(fn)
+    def value(params, force_n, hint, *args):
+        return jitted(params, jnp.asarray(force_n, float), hint, *args)
+
+    return value
+
+
 def _on_hyperplane(params, force_n, hint: PeakHint, adjoint):
     """(v, family): the branch point's unknowns attached to (params, force_n) through the
     hyperplane system G(v; theta) = [R(v; theta), t* . (v - v*)] = 0 (module docstring).
@@ -292,6 +308,7 @@ def _on_hyperplane(params, force_n, hint: PeakHint, adjoint):
     return adjoint.attach(augmented, family, v_star, hint.jacobian), family
 
 
+@_one_program
 def frc_peak_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
     """The FRC peak nut amplitude [m] at the located peak, differentiable in `params` and
     `force_n` by the implicit function theorem (module docstring). `adjoint`:
@@ -299,6 +316,7 @@ def frc_peak_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
     return frc_point_values(params, force_n, hint, adjoint)[0]
 
 
+@_one_program
 def frc_point_values(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
     """(nut amplitude [m], frequency [Hz]) of a located branch point on the hyperplane
     normal to the branch there, differentiable in `params` and `force_n`: at the peak
@@ -327,6 +345,7 @@ def _residual(hint, ode_adj):
                                           hint.p_scale, 1, v, ode_adj)
 
 
+@_one_program
 def fold_frequency_value(params, force_n, hint: PeakHint, adjoint=ImplicitReverse()):
     """The frequency [Hz] of a located fold of the FRC at `force_n`, differentiable in
     `params` and `force_n`.
@@ -340,6 +359,7 @@ def fold_frequency_value(params, force_n, hint: PeakHint, adjoint=ImplicitRevers
     return _on_hyperplane(params, force_n, hint, adjoint)[0][-1] * hint.p_scale
 
 
+@_one_program
 def frc_peak_frequency_value(params, force_n, hint: PeakHint):
     """The frequency [Hz] of the located FRC peak, differentiable (forward mode).
 

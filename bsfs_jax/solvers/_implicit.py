@@ -43,7 +43,7 @@ class ImplicitForward(AbstractOrbitAdjoint):
         return dfx.ForwardMode()
 
     def attach(self, residual, theta, u_star, jacobian):
-        return _attach_fwd(theta, u_star, jacobian, residual=residual)
+        return _attach_fwd(theta, u_star, jacobian, residual=_explicit(residual, u_star, theta))
 
 
 class ImplicitReverse(AbstractOrbitAdjoint):
@@ -54,7 +54,19 @@ class ImplicitReverse(AbstractOrbitAdjoint):
         return dfx.RecursiveCheckpointAdjoint()
 
     def attach(self, residual, theta, u_star, jacobian):
-        return _attach_rev(theta, u_star, jacobian, residual=residual)
+        return _attach_rev(theta, u_star, jacobian, residual=_explicit(residual, u_star, theta))
+
+
+def _explicit(residual, u_star, theta):
+    """`residual` with the arrays it closes over as pytree leaves: a plain function
+    (closure) is converted (`eqx.filter_closure_convert`, one more trace of it), an
+    `eqx.Module` (the orbit engine's `_Residual`) already carries them. Where the caller is
+    jitted and differentiated from outside (`jax.grad` of a jitted function), a closure's
+    captured tracers would otherwise leak into the transposed program ("No constant
+    handler for type DynamicJaxprTracer")."""
+    if isinstance(residual, eqx.Module):
+        return residual
+    return eqx.filter_closure_convert(residual, u_star, theta)
 
 
 def _zeros_for_none(primal, tangent):
