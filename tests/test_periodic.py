@@ -330,3 +330,23 @@ def test_implicit_gradients_through_contact_loss(bsfs_point, method, agree):
     np.testing.assert_allclose(g_rev, g_fwd, rtol=agree)
     np.testing.assert_allclose(g_rev, fd, rtol=1e-4)
 
+
+
+@pytest.mark.parametrize("adjoint,diff", [(ImplicitReverse(), jax.grad),
+                                          (ImplicitForward(), jax.jacfwd)],
+                         ids=["reverse", "forward"])
+def test_attach_differentiates_a_jitted_function_from_outside(adjoint, diff):
+    """u*(theta) = sqrt(c theta) attached by a residual that closes over `c`, a tracer of
+    the jit around it: differentiating the jitted function from outside (the user's
+    jax.grad of a jitted design metric) gives the closed form; a closure's tracer used to
+    leak into the transposed program."""
+
+    @jax.jit
+    def root(theta, c):
+        u_star = jax.lax.stop_gradient(jnp.sqrt(c * theta))
+        return adjoint.attach(lambda u, th: u * u - c * th, theta, u_star,
+                              2.0 * u_star[:, None])[0]
+
+    theta, c = jnp.array([2.0]), jnp.asarray(3.0)
+    assert float(diff(lambda t: root(t, c))(theta)[0]) == pytest.approx(
+        0.5 * np.sqrt(3.0 / 2.0), rel=1e-12)
