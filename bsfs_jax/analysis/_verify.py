@@ -194,15 +194,14 @@ _DECAY_CHUNK = 64
 def slowest_decay_rate(problem, values) -> np.ndarray:
     """Slowest decay rate min(-Re lambda) [1/time unit] of the linearisation at
     `problem.y0` for each value (NaN where some eigenvalue does not decay)."""
-    shape = np.shape(values)
-    values = np.asarray(values, dtype=float).reshape(-1)
-    n = values.size
-    if n == 0:
-        return np.zeros(shape)
-    padded = np.concatenate([values, np.full(-n % _DECAY_CHUNK, values[-1])])
-    return np.concatenate([np.asarray(_decay_rates(problem, jnp.asarray(
-        padded[i:i + _DECAY_CHUNK], dtype=float))) for i in range(0, padded.size,
-                                                                  _DECAY_CHUNK)])[:n].reshape(shape)
+    flat = np.asarray(values, dtype=float).reshape(-1)
+    if flat.size == 0:
+        return np.zeros(np.shape(values))
+    padded = np.concatenate([flat, np.full(-flat.size % _DECAY_CHUNK, flat[-1])])
+    rates = [np.asarray(_decay_rates(problem, jnp.asarray(padded[i:i + _DECAY_CHUNK],
+                                                          dtype=float)))
+             for i in range(0, padded.size, _DECAY_CHUNK)]
+    return np.concatenate(rates)[:flat.size].reshape(np.shape(values))
 
 
 def minimum_transient(problem, values, periods, settings: VerifySettings = VerifySettings(),
