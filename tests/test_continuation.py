@@ -421,3 +421,33 @@ def test_bifurcations_without_the_amplitudes(duffing_frc):
     with pytest.raises(ValueError, match="find_peaks needs the amplitudes"):
         continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
                         **dict(kw, find_peaks=True))
+
+
+def test_amplitudes_at_the_events_only(duffing_frc):
+    """`amplitudes="events"` (`bsfs map`'s row continuations): the corrector of
+    `amplitudes=False` (no new trace) and the same points, NaN amplitudes along the branch,
+    and each located fold's amplitudes from a program of their own, equal to those the
+    full corrector gives there; any other value is refused."""
+    from bsfs_jax.solvers import Shooting, prefetch_corrector
+
+    family = frequency_family(**HARDENING)
+    kw = dict(vector_field=duffing, scale=jnp.ones(2), normalise=False, p_scale=1.0,
+              find_peaks=False)
+    prefetch_corrector(family, duffing, Shooting(), jnp.array([0.1, 0.0]), 0.8,
+                       amplitudes="events").result(timeout=300)
+    branch = continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                             amplitudes="events", **kw)
+    assert branch.info["corrector_traces"] == 0
+    np.testing.assert_allclose(branch.p, duffing_frc.p, rtol=1e-12)
+    assert np.all(np.isnan(branch.amplitudes))
+    folds = [b for b in branch.bifurcations if b.kind == "fold"]
+    full = [b for b in duffing_frc.bifurcations if b.kind == "fold"]
+    assert len(folds) == len(full) == 2 and all(b.located for b in folds)
+    for b, ref in zip(folds, full, strict=True):
+        assert b.p == pytest.approx(ref.p, rel=1e-12)
+        assert np.all(np.isfinite(b.amplitudes)) and b.amplitude == b.amplitudes[0]
+        np.testing.assert_allclose(b.amplitudes, ref.amplitudes, rtol=1e-10)
+        np.testing.assert_array_equal(b.point.amplitudes, b.amplitudes)
+    with pytest.raises(ValueError, match="amplitudes must be True, False or 'events'"):
+        continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                        **dict(kw, amplitudes="all"))

@@ -49,7 +49,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                     tol: float = 1e-8, max_newton: int = 8, max_angle: float = 0.3,
                     amplitude_index: int = 0, locate: bool = True, locate_iters: int = 14,
                     find_peaks: bool = True, normalise: bool = True, trim: bool = True,
-                    amplitudes: bool = True, progress=False) -> Branch:
+                    amplitudes: bool | str = True, progress=False) -> Branch:
     """Follow a branch of n T-periodic orbits from p_start towards p_stop.
 
     **Main arguments:**
@@ -84,6 +84,9 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     - `amplitudes`: False leaves the orbits' amplitudes out (NaN; needs
       `find_peaks=False`): a smaller corrector program, where only the bifurcations
       are wanted (`bsfs continue`'s cross-check of the folds by the other method).
+      "events": the same corrector, with the amplitudes of each located bifurcation
+      computed afterwards by a small program of their own (`bsfs map`'s row
+      continuations: each corrector call about 35 % cheaper).
     - `progress`: True for a tqdm bar, or a callable(n_points, p).
 
     **Returns:** a `Branch`; raises `SolverError` if the first orbit cannot be found.
@@ -100,9 +103,11 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                          f"{p_stop}")
     if not ds > 0:
         raise ValueError(f"ds must be positive, got {ds}")
-    if not amplitudes and find_peaks:
+    if amplitudes not in (True, False, "events"):
+        raise ValueError(f"amplitudes must be True, False or 'events', got {amplitudes!r}")
+    if amplitudes is not True and find_peaks:
         raise ValueError("find_peaks needs the amplitudes: give find_peaks=False with "
-                         "amplitudes=False")
+                         f"amplitudes={amplitudes!r}")
     ds_min = ds / 1000 if ds_min is None else float(ds_min)
     ds_max = 10 * ds if ds_max is None else float(ds_max)
     family = prepare_outside(float_leaves_to_arrays(family))
@@ -122,7 +127,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
     lo, hi = min(p_start, p_stop), max(p_start, p_stop)
 
     kernel = Kernel(family, vector_field, method, scale, p_scale, n_periods, tol, max_newton,
-                    amplitude_index if amplitudes else -1)
+                    amplitude_index if amplitudes is True else -1)
     traces_before = TRACE_COUNTS["corrector"]
     kernel, first = _first_point(kernel, y_guess, p_start, normalise, samples)
     first = first.oriented(direction)
@@ -250,6 +255,11 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
         bif = locate_event(kernel, points[index], points[index + 1], index, k, kind,
                            locate_iters if locate else 0)
         if bif is not None:
+            if amplitudes == "events":
+                amps = kernel.amplitudes(bif.point.u)
+                bif = dataclasses.replace(
+                    bif, amplitude=float(amps[amplitude_index]), amplitudes=amps,
+                    point=dataclasses.replace(bif.point, amplitudes=amps))
             bifurcations.append(bif)
     info = {"steps": steps_taken, "rejected": rejected, "points": len(points),
             "stop_reason": stop_reason, "corrector_calls": kernel.calls,

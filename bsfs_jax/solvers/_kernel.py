@@ -140,6 +140,18 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
     return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
 
 
+@functools.lru_cache(maxsize=64)
+def _amplitude_program(static_family, vector_field, method, n_periods):
+    """The half peak-to-peak of every coordinate of the orbit with unknowns u (scaled,
+    then p / p_scale), jitted over arrays only: the amplitudes at a branch's located
+    events where the corrector leaves them out (`continue_orbits(amplitudes="events")`)."""
+    def fn(dynamic_family, scale, p_scale, u):
+        family = eqx.combine(dynamic_family, static_family)
+        return family_amplitudes(family, vector_field, method, scale, p_scale, n_periods, u)
+
+    return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
+
+
 @cached_jit(fast_compile=True)
 def _kept_corrector(family, scale, p_scale, tol, u_pred, tangent, lu, pivots, vector_field,
                     method, n_periods, max_iter, amplitude_index, use_chord):
@@ -185,7 +197,7 @@ def no_chord(n: int, committed: bool = False):
 
 def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: int = 1,
                        max_newton: int = 8, amplitude_index: int = 0,
-                       amplitudes: bool = True):
+                       amplitudes: bool | str = True):
     """Start compiling, on the background thread (`bsfs_jax._programs.in_background`), the
     corrector program that `continue_orbits(family, y_guess, p, ..., method=method)` with
     these arguments will call; its first call then finds it in jit's cache. For a
@@ -208,14 +220,21 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
         n = z.shape[0] + 1
         head = (scale, np.asarray(1.0), np.asarray(1e-8), np.zeros(n), np.zeros(n))
         statics = (vector_field, method, int(n_periods), int(max_newton),
-                   int(amplitude_index) if amplitudes else -1, bool(method.uses_chord))
+                   int(amplitude_index) if amplitudes is True else -1,
+                   bool(method.uses_chord))
         example = (*head, *no_chord(n, committed=True))
+        dyn, static = eqx.partition(fam, eqx.is_array)
         if _kept_corrector.keeps(fam, *example, *statics):
             # The kept program's own prefetch (queued next; its `bind` later waits for it).
             _kept_corrector.prefetch_now(fam, *example, *statics)
-            return
-        dyn, static = eqx.partition(fam, eqx.is_array)
-        compile_in_background(_compiled(static, *statics).lower(dyn, *head, *no_chord(n)))
+        else:
+            compile_in_background(_compiled(static, *statics).lower(dyn, *head,
+                                                                    *no_chord(n)))
+        if amplitudes == "events":  # the events' amplitudes (`Kernel.amplitudes`), queued
+            # after the corrector, which every point needs first
+            program = _amplitude_program(static, vector_field, method, int(n_periods))
+            in_background(lambda: compile_in_background(program.lower(
+                dyn, np.asarray(scale, float), np.asarray(1.0), np.zeros(n))))
 
     return in_background(job)
 
@@ -267,6 +286,14 @@ class Kernel:
             lu, piv = self._no_chord
         pt = self._fn(*head, lu, piv)
         return as_host(pt, self.accurate_tol, ds_used)
+
+    def amplitudes(self, u) -> np.ndarray:
+        """Half peak-to-peak of every coordinate of the orbit with unknowns `u`, by its own
+        small program (`_amplitude_program`)."""
+        dyn, static = eqx.partition(self.family, eqx.is_array)
+        fn = _amplitude_program(static, self.vector_field, self.method, int(self.n_periods))
+        return np.asarray(fn(dyn, np.asarray(self.scale, float),
+                             np.asarray(self.p_scale, float), np.asarray(u, float)))
 
     def with_method(self, method) -> "Kernel":
         return dataclasses.replace(self, method=method, _fn=None, _kept=False, _no_chord=None)
