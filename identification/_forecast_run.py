@@ -281,7 +281,6 @@ def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
     zeta = next(q.value for q in modal if q.name == "damping_ratio_1")
     linear = linear_liftoff(ident, start, stop)
     settings = frc_settings(settings, force, linear[1][0])
-    frc, curves = _frc_quantities(ident, force, start, stop, settings, zeta)
 
     def nominal_frc():
         try:
@@ -291,11 +290,15 @@ def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
         except ForecastError:
             return None  # the nominal drive's peak may lie outside the band: plotted without
 
-    # The nominal curve (for the figure) runs beside the lift-off search: its program is
-    # the estimate's, compiled by now, and XLA runs it without Python's lock.
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    # The lift-off search does not depend on the FRC's quantities: it runs beside them
+    # (while they wait for their points' program, one core was idle), and the nominal
+    # curve (for the figure) after them, beside the search's end: its program is the
+    # estimate's, compiled by then, and XLA runs it without Python's lock.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        search = pool.submit(nonlinear_liftoff, ident, *linear, start, stop)
+        frc, curves = _frc_quantities(ident, force, start, stop, settings, zeta)
         nominal_branch = pool.submit(nominal_frc) if nominal_curve else None
-        lift, per_joint = nonlinear_liftoff(ident, *linear, start, stop)
+        lift, per_joint = search.result()
         nominal_branch = None if nominal_branch is None else nominal_branch.result()
     pre = _preloads(ident, nominal)
     quantities = modal + frc + [lift] + pre
