@@ -393,7 +393,7 @@ def test_frc_peak_gradient_at_5000n():
     settings = OrbitSettings(frc_band=(900.0 / 1165.0, 1500.0 / 1165.0))
     names = ("masses.nut_kg", "nut.preload_n")
     ad = sensitivities("frc_peak", cold, names, force_n=5000.0, settings=settings)
-    fd = finite_difference_sensitivities("frc_peak", cold, names, force_n=5000.0,
+    fd = finite_difference_sensitivities("frc_peak", cold, names[:1], force_n=5000.0,
                                          settings=settings)
     assert ad.gradient[0] == pytest.approx(fd.gradient[0], rel=1e-4)
     # The preload moves the 961 um peak by only 2.5e-4 um per 1e-4 relative step, near the
