@@ -335,7 +335,6 @@ def test_implicit_gradients_through_contact_loss(bsfs_point, method, agree):
     np.testing.assert_allclose(g_rev, fd, rtol=1e-4)
 
 
-
 @pytest.mark.parametrize("adjoint,diff", [(ImplicitReverse(), jax.grad),
                                           (ImplicitForward(), jax.jacfwd)],
                          ids=["reverse", "forward"])
