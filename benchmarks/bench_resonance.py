@@ -117,7 +117,16 @@ def markdown(r) -> str:
               "swept_unknowns`). That change costs no time here: the preload set, the code "
               "before and after in fresh processes, one cold run each (22.7 s / 23.7 s) and "
               "three alternating warm runs each (median 5.09 s / 5.30 s), `report.json` "
-              "identical. The lower figures against 12:02 are this machine's, not the code's."]
+              "identical. The lower figures against 12:02 are this machine's, not the code's.",
+              "",
+              "Session 20 (2026-11-29): a periodic-orbit record's weight carries the force "
+              "sensor's noise through the orbit's own derivatives (`identification/"
+              "_force_noise.py`: central differences of the prediction program with orbits, "
+              "one more compiled program, about 2.3 s to compile). The preload set, "
+              "alternating with the code before (2bca6ba), each in a fresh cache: 27.4 and "
+              "28.0 s cold against 24.4 and 24.5 s, 6.4 and 6.5 s warm against 5.9 and 6.0 s, "
+              "32 programs against 31 (that hour ran about 11 % slower than this table's "
+              "run)."]
     return "\n".join(lines) + "\n"
 
 

@@ -102,6 +102,17 @@ def sweep_direction(d) -> float:
     return {"up": 1.0, "down": -1.0}.get(str(meta.get("sweep", "")).strip().lower(), 0.0)
 
 
+def sine_variance(problem, i, d) -> np.ndarray:
+    """(H, 2) variance of sine record i's residual A - model(F), Re and Im per harmonic:
+    the acceleration's own plus the force's through the model (`_force_noise.force_gains`
+    where the record has them, else the linearised |G|^2)."""
+    gain = getattr(problem, "force_gain", {}).get(i)
+    if gain is None:
+        return d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
+    h = d.harmonics.size
+    return d.acceleration_var + np.einsum("kcmd,md->kc", gain[:h, :, :h, :], d.force_var)
+
+
 def _sine_arrays(problem, idx, h, rows):
     freq = np.full((rows, h), _PAD_FREQUENCY_HZ) * np.arange(1, h + 1)
     force = np.zeros((rows, h), complex)
@@ -118,8 +129,9 @@ def _sine_arrays(problem, idx, h, rows):
         if d.force_rate is not None:
             rate[j], rate2[j] = d.force_rate, d.force_rate2
         # Errors in both channels: var(A - G F) = var(A) + |G|^2 var(F), with G the model's
-        # transfer where the models were chosen (a weight only; not differentiated).
-        var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
+        # transfer where the models were chosen (a weight only; not differentiated); for a
+        # periodic-orbit record the orbit's own derivatives (`_force_noise`).
+        var = sine_variance(problem, i, d)
         # Harmonics near the anti-alias filter are left out (their phase is the filter's,
         # not the structure's): infinite std -> zero residual.
         std[j] = np.where((freq[j] <= problem.max_harmonic_hz)[:, None], np.sqrt(var), np.inf)

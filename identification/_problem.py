@@ -33,6 +33,7 @@ from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
 from . import _model
 from ._choice import MODEL_ERROR, is_frf, keep_marginal, line_bound, same_choice, screen
+from ._force_noise import force_gains
 from ._groups import build_data, used_rows
 from ._lm import NO_INFORMATION_STD
 from ._parameters import DEFAULT_FIT, FIT_PARAMETERS, MAX_HARMONIC_FRACTION
@@ -136,7 +137,13 @@ class Problem:
         if previous is not None:
             self.models, self.frf_left_out = keep_marginal(self, previous, model_error)
         self.info_floor = 1.0 / NO_INFORMATION_STD if self.prior_sigma is None else 0.0
+        self.force_gain = {}
         self.fit_data, self.structure, self.layout = build_data(self, is_frf)
+        if nonlinear_ratio is None:  # not a plan: the orbit records' weights from the orbit
+            theta = np.zeros(len(self.names)) if model_theta is None else self.model_theta
+            self.force_gain = force_gains(self, theta)
+            if self.force_gain:
+                self.fit_data, self.structure, self.layout = build_data(self, is_frf)
 
     def without_orbit_records(self) -> Problem | None:
         """The records the linearised and first-order models explain (those not on the

@@ -205,6 +205,7 @@ def record_branches(problem: Problem, theta, models: dict | None = None) -> dict
     (16 against 32 harmonics, largest over the usable harmonics). `models` (a dict, filled
     in): {record index: the fitted orbit's acceleration harmonics (nan: no orbit)}."""
     from ._choice import _z
+    from ._groups import sine_variance
     from ._orbit_model import branches
 
     out = {}
@@ -216,7 +217,7 @@ def record_branches(problem: Problem, theta, models: dict | None = None) -> dict
             if models is not None:
                 models[i] = fitted[j]
             d = recs[j]
-            var = d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
+            var = sine_variance(problem, i, d)
             usable = d.frequency_hz * d.harmonics <= problem.max_harmonic_hz
             z = float(np.max(np.where(usable, _z(trunc[j], var), 0.0)))
             out[i] = dict(branch=labels[j], orbit_truncation_error_std=z, **evidence[j])

@@ -12,6 +12,7 @@ weights and a truth drawn from the prior its spread is 1 (docs/ROBUSTNESS.md, se
     python scripts/robustness_step_check.py --draw uniform              # 100 drives, ~5 min
     python scripts/robustness_step_check.py --draw uniform --no-effects # no drift, distortion
     python scripts/robustness_step_check.py --draw uniform --noise-free # model error alone
+    python scripts/robustness_step_check.py --draw uniform --first 100 --drives 300  # new seeds
 
 Rows: out/robustness/step_check.<draw>[.no_effects][.noise_free].jsonl (a rerun skips
 drives already there); the summary is printed.
@@ -106,7 +107,9 @@ def summary(rows: list[dict]) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draw", choices=("uniform", "prior"), default="uniform")
-    ap.add_argument("--drives", type=int, default=100)
+    ap.add_argument("--drives", type=int, default=100, help="drives [first, drives)")
+    ap.add_argument("--first", type=int, default=0,
+                    help="first drive (new seeds: a population the study has not seen)")
     ap.add_argument("--no-effects", action="store_true",
                     help="records without the shaker's drift and distortion")
     ap.add_argument("--noise-free", action="store_true",
@@ -122,7 +125,7 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"step_check.{tag}.jsonl"
     done = {r["drive"] for r in read_done(path)}
-    for drive in range(args.drives):
+    for drive in range(args.first, args.drives):
         if drive not in done:
             try:
                 row = step_at_truth(drive, args.draw, effects, args.noise_free)
@@ -130,7 +133,7 @@ def main(argv=None) -> int:
                 row = dict(drive=drive, error=str(exc).splitlines()[0])
             append_line(path, row)
             print(f"[{tag} {drive + 1}/{args.drives}]", flush=True)
-    rows = [r for r in read_done(path) if r["drive"] < args.drives]
+    rows = [r for r in read_done(path) if args.first <= r["drive"] < args.drives]
     for r in rows:
         if "error" in r:
             print(f"drive {r['drive']}: {r['error']}")
