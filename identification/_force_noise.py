@@ -12,9 +12,12 @@ variances up to 10x the stated ones along the directions that inform the dampers
 Here the orbit records' weights take the model's own derivatives instead: var(A_kc) +
 sum_md (d model_kc / d F_md)^2 var(F_md) over the Re and Im parts c, d of every harmonic
 k, m, the derivatives by central differences of the fit's own prediction program
-(`_model.predictions`, already compiled for the report) at the point where the models are
-chosen. Six force directions are perturbed in every record at once: records do not
-couple. A diagonal weight: the residual's correlations between harmonics are not carried.
+(`_model.predictions` with its orbits: one compiled program per layout, about 2 s to
+compile for the bundled through-resonance test) at the point where the models are chosen
+(the prior, the first estimate, the estimate). Six force directions are perturbed in
+every record at once: records do not couple. A diagonal weight: the residual's
+correlations between its entries are not carried, so a near-resonance record whose
+amplified direction lies between Re and Im keeps part of its anisotropy.
 """
 
 from __future__ import annotations
