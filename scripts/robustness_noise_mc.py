@@ -8,7 +8,9 @@ replicate goes through the measurement pipeline (`measurement_data`: frequency r
 harmonic fit, weights) and its weighted residual at the truth is computed with the
 problem's own model. Honest weights give that residual the identity covariance, and each
 parameter's part of the Gauss-Newton step, (C J_r^T w)_i / sd_i, the variance of the
-record's information share (diag(C J_r^T J_r C) / sd^2): the printed ratio is 1.
+record's information share (diag(C J_r^T J_r C) / sd^2): the printed ratio is 1. The
+mean of the part over the replicates, in its own standard deviations, is the record's
+model error at the truth (0 for an exact model).
 
     python scripts/robustness_noise_mc.py --drive 16 --record 5            # sine at 0.95 f1
     python scripts/robustness_noise_mc.py --drive 16 --record 5 --noise force
@@ -140,7 +142,8 @@ def replicate(drive: int, record: int, replicates: int, noise: str = "both",
     out = dict(drive=drive, record=record, name=pb.data[record].name,
                model=pb.models[record], noise=noise, replicates=replicates,
                mean_z2=float(np.mean(z2)), names=list(pb.names),
-               ratio=[float(x) for x in parts.var(axis=0)])
+               ratio=[float(x) for x in parts.var(axis=0)],
+               part_mean=[float(x) for x in parts.mean(axis=0)])
     if not is_frf:
         m = np.cov(np.asarray(ws).T)
         out["cov_eigenvalues"] = [float(x) for x in np.linalg.eigvalsh(np.atleast_2d(m))]
@@ -167,6 +170,8 @@ def main(argv=None) -> int:
                   + "; its mean: " + ", ".join(f"{x:+.2f}" for x in o["residual_mean"]))
         print("  variance of each parameter's part / its share (1: honest): " + ", ".join(
             f"{n} {x:.2f}" for n, x in zip(o["names"], o["ratio"])))
+        print("  mean of each part / sqrt(share) (0: no error at the truth but noise): "
+              + ", ".join(f"{n} {x:+.2f}" for n, x in zip(o["names"], o["part_mean"])))
     return 0
 
 
