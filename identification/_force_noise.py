@@ -63,7 +63,9 @@ def force_gains(problem, theta) -> dict:
     for k in range(n_h):
         for c, unit in ((0, 1.0), (1, 1j)):
             plus, minus = predicted(k, unit, 1.0), predicted(k, unit, -1.0)
-            cols[k, c] = [(p - m) / (2.0 * h[:, None]) for p, m, h in zip(plus, minus, steps)]
+            with np.errstate(invalid="ignore", divide="ignore"):  # no orbit: inf, left out
+                cols[k, c] = [(p - m) / (2.0 * h[:, None])
+                              for p, m, h in zip(plus, minus, steps)]
     out = {}
     for i in orbit:
         gi, _, _, j = problem.layout[i]
