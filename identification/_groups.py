@@ -106,7 +106,7 @@ def sine_variance(problem, i, d) -> np.ndarray:
     """(H, 2) variance of sine record i's residual A - model(F), Re and Im per harmonic:
     the acceleration's own plus the force's through the model (`_force_noise.force_gains`
     where the record has them, else the linearised |G|^2)."""
-    gain = getattr(problem, "force_gain", {}).get(i)
+    gain = problem.force_gain.get(i)
     if gain is None:
         return d.acceleration_var + np.abs(problem.transfer[i])[:, None] ** 2 * d.force_var
     h = d.harmonics.size

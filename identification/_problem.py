@@ -140,7 +140,7 @@ class Problem:
         self.force_gain = {}
         self.fit_data, self.structure, self.layout = build_data(self, is_frf)
         if nonlinear_ratio is None:  # not a plan: the orbit records' weights from the orbit
-            theta = np.zeros(len(self.names)) if model_theta is None else self.model_theta
+            theta = np.zeros(self.n_params) if model_theta is None else self.model_theta
             self.force_gain = force_gains(self, theta)
             if self.force_gain:
                 self.fit_data, self.structure, self.layout = build_data(self, is_frf)

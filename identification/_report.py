@@ -12,6 +12,7 @@ import bsfs_jax
 
 from ._choice import line_bound
 from ._fit import FitResult, fit, gate_steady_state
+from ._groups import sine_variance
 from ._measurement import HarmonicData, harmonic_analysis
 from ._misfit import gate_record_misfit
 from ._parameters import DEFAULT_FIT, require_x64
@@ -205,7 +206,6 @@ def record_branches(problem: Problem, theta, models: dict | None = None) -> dict
     (16 against 32 harmonics, largest over the usable harmonics). `models` (a dict, filled
     in): {record index: the fitted orbit's acceleration harmonics (nan: no orbit)}."""
     from ._choice import _z
-    from ._groups import sine_variance
     from ._orbit_model import branches
 
     out = {}

@@ -37,22 +37,16 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import robustness_study as rs  # noqa: E402
+from robustness_step_check import problem_at_truth  # noqa: E402
 
-import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
 from identification import _model  # noqa: E402
 from identification._groups import sine_variance  # noqa: E402
 
 
 def _problem_at_truth(drive: int, draw: str):
-    params, truth = rs.draw_drive("default", drive, draw)
-    recs, _ = rs.synth(params, drive)
-    pb = idn.Problem([idn.measurement_data(r) for r in recs],
-                     bsfs_jax.preset().replace("thermal.speed_rpm", rs.SPEED),
-                     rs.SETS["default"])
-    theta = pb.theta_of(np.asarray([truth[n] for n in pb.names]))
-    pb = (pb.rechosen(theta) if pb.chooses_models else pb).anchored(theta)
-    r, jac = pb.rj(theta)
+    pb, theta, params = problem_at_truth(drive, draw)
+    _, jac = pb.rj(theta)
     cov = np.linalg.inv(jac.T @ jac)
     clean, _ = rs.synth(params, drive, dataclasses.replace(rs.EFFECTS, accel_snr_db=300.0,
                                                            force_snr_db=300.0))

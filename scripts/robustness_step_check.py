@@ -44,7 +44,10 @@ def record_kind(name: str, j: int) -> str:
     return "chirp" if "chirp" in name else "3000N" if "3000N" in name else f"sine{j}"
 
 
-def step_at_truth(drive: int, draw: str, effects, clean: bool) -> dict:
+def problem_at_truth(drive: int, draw: str, effects=rs.EFFECTS, clean: bool = False):
+    """(problem, theta at the truth, the drive's params): the default set's problem of the
+    drive's records (noise-free values with the noisy weights where `clean`), its models
+    chosen and its swept records anchored at the truth."""
     params, truth = rs.draw_drive("default", drive, draw)
     recs, _ = rs.synth(params, drive, effects)
     data = rs.noise_free(params, drive, recs) if clean else [
@@ -52,7 +55,11 @@ def step_at_truth(drive: int, draw: str, effects, clean: bool) -> dict:
     pb = idn.Problem(data, bsfs_jax.preset().replace("thermal.speed_rpm", rs.SPEED),
                      rs.SETS["default"])
     theta = pb.theta_of(np.asarray([truth[n] for n in pb.names]))
-    pb = (pb.rechosen(theta) if pb.chooses_models else pb).anchored(theta)
+    return (pb.rechosen(theta) if pb.chooses_models else pb).anchored(theta), theta, params
+
+
+def step_at_truth(drive: int, draw: str, effects, clean: bool) -> dict:
+    pb, theta, _ = problem_at_truth(drive, draw, effects, clean)
     r, jac = pb.rj(theta)
     cov = np.linalg.inv(jac.T @ jac)
     sd = np.sqrt(np.diag(cov))
