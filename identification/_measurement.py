@@ -48,6 +48,7 @@ import numpy as np
 
 from bsfs_jax.machine import tangent_matrices
 
+from ._antialias import response as antialias_response
 from ._records import Record
 
 N_HARMONICS = 3
@@ -183,9 +184,14 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
         coef, cov_diag, s2 = _fit(x, t, f, n_harmonics, drift_order)
         out[name] = (*_unpack(coef, cov_diag, n_harmonics, drift_order), float(np.sqrt(s2)))
     (fdc, fc, fvar, fenv, fn), (adc, ac, avar, _, an) = out["force"], out["acceleration"]
-    return HarmonicData(f, np.arange(1, n_harmonics + 1), fc, ac, fvar, avar, fn, an,
-                        float(fdc), float(adc), int(t.size), record,
-                        *_envelope_rates(fenv, t[-1] - t[0]))
+    harmonics = np.arange(1, n_harmonics + 1)
+    rates = _envelope_rates(fenv, t[-1] - t[0])
+    h = antialias_response(record.meta, f * harmonics)
+    if h is not None:  # what the structure saw: the stated filter divided out
+        fc, ac, rates = fc / h, ac / h, tuple(r / h for r in rates)
+        fvar, avar = (v / np.abs(h)[:, None] ** 2 for v in (fvar, avar))
+    return HarmonicData(f, harmonics, fc, ac, fvar, avar, fn, an, float(fdc), float(adc),
+                        int(t.size), record, *rates)
 
 
 # ----------------------------------------------------------------------------- model side

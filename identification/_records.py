@@ -22,7 +22,10 @@ Header keys of a time record (`# key = value` in CSV, `key=value` in the UFF id 
   `force_range_n`, `acceleration_range_m_s2` (full-scale ranges, for the clipping check);
 - sine: `frequency_hz`, `force_amplitude_n` (amplitude of the fundamental);
 - chirp: `start_hz`, `stop_hz`, `force_amplitude_n` (the sweep's constant amplitude);
-- random: `force_rms_n` (RMS force); optional `start_hz`, `stop_hz` (the drive band).
+- random: `force_rms_n` (RMS force); optional `start_hz`, `stop_hz` (the drive band);
+- optional `antialias_filter`, `antialias_order`, `antialias_cutoff_hz`,
+  `antialias_design_rate_hz`: the acquisition's anti-alias filter (`_antialias.py`), divided
+  out of a sine record's harmonics.
 
 For chirp and random records `Record.frequency_hz` is NaN (there is no single frequency)
 and `Record.force_amplitude_n` holds the header's force level (the RMS for random).
@@ -35,6 +38,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from ._antialias import filter_problem
 
 COLUMNS = ("time_s", "force_n", "acceleration_m_s2")
 EXCITATIONS = ("sine", "chirp", "random")
@@ -177,6 +182,9 @@ def check_meta(path, meta: dict) -> str:
     if "start_hz" in meta and not meta["start_hz"] < meta["stop_hz"]:
         raise RecordError(f"{path}: header start_hz = {meta['start_hz']:g} must be below "
                           f"stop_hz = {meta['stop_hz']:g}.")
+    problem = filter_problem(meta)
+    if problem:
+        raise RecordError(f"{path}: {problem}")
     return kind
 
 

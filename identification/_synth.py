@@ -135,12 +135,15 @@ class TestEffects:
     accel_dc_m_s2: float = 0.02
     settle_s: float = 0.25  # start-up transient simulated and discarded
     oversample: int = 4
+    antialias_order: int = 8  # Butterworth order of the anti-alias filter (0: none)
 
 
-def _antialias(x, fs_high, cutoff):
+def _antialias(x, fs_high, cutoff, order=8):
     from scipy.signal import butter, sosfilt
 
-    sos = butter(8, cutoff, fs=fs_high, output="sos")
+    if order == 0:
+        return x
+    sos = butter(order, cutoff, fs=fs_high, output="sos")
     return sosfilt(sos, x)
 
 
@@ -257,13 +260,18 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
                 speed_rpm=float(np.asarray(params.thermal.speed_rpm)),
                 ambient_c=float(np.asarray(params.thermal.ambient_c)), synthetic="true")
     cutoff = 0.4 * sample_rate_hz
+    if effects.antialias_order:  # the record states its filter (`_antialias.py`)
+        base.update(antialias_filter="butterworth",
+                    antialias_order=float(effects.antialias_order),
+                    antialias_cutoff_hz=float(cutoff), antialias_design_rate_hz=float(fs_hi))
     rms = lambda x: float(np.sqrt(np.mean((x - np.mean(x)) ** 2)))
     t = np.arange(n_rec) / sample_rate_hz
     f0 = meta.get("frequency_hz", float("nan"))
     records = []
     for seed, rng, (force, acc) in zip(seeds, rngs, lanes):
-        force = _antialias(force, fs_hi, cutoff)[n_settle::effects.oversample]
-        acc = _antialias(acc, fs_hi, cutoff)[n_settle::effects.oversample]
+        force = _antialias(force, fs_hi, cutoff, effects.antialias_order)[
+            n_settle::effects.oversample]
+        acc = _antialias(acc, fs_hi, cutoff, effects.antialias_order)[n_settle::effects.oversample]
         force = (force + effects.force_dc_n
                  + rng.normal(0, rms(force) * 10 ** (-effects.force_snr_db / 20), force.size))
         acc = (acc + effects.accel_dc_m_s2

@@ -50,7 +50,7 @@ def problem_at_truth(drive: int, draw: str, effects=rs.EFFECTS, clean: bool = Fa
     chosen and its swept records anchored at the truth."""
     params, truth = rs.draw_drive("default", drive, draw)
     recs, _ = rs.synth(params, drive, effects)
-    data = rs.noise_free(params, drive, recs) if clean else [
+    data = rs.noise_free(params, drive, recs, effects) if clean else [
         idn.measurement_data(r) for r in recs]
     pb = idn.Problem(data, bsfs_jax.preset().replace("thermal.speed_rpm", rs.SPEED),
                      rs.SETS["default"])
@@ -119,15 +119,18 @@ def main(argv=None) -> int:
                     help="first drive (new seeds: a population the study has not seen)")
     ap.add_argument("--no-effects", action="store_true",
                     help="records without the shaker's drift and distortion")
+    ap.add_argument("--no-filter", action="store_true",
+                    help="records without the anti-alias filter")
     ap.add_argument("--noise-free", action="store_true",
                     help="noise-free values weighted as the noisy ones (model error alone)")
     ap.add_argument("--out", type=Path, default=rs.OUT)
     args = ap.parse_args(argv)
-    if args.no_effects and args.noise_free:
-        ap.error("--noise-free resynthesises with the study's effects: use one of the two")
     effects = (dataclasses.replace(rs.EFFECTS, drift=0.0, h2=0.0, h3=0.0)
                if args.no_effects else rs.EFFECTS)
+    if args.no_filter:
+        effects = dataclasses.replace(effects, antialias_order=0)
     tag = (args.draw + (".no_effects" if args.no_effects else "")
+           + (".no_filter" if args.no_filter else "")
            + (".noise_free" if args.noise_free else ""))
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"step_check.{tag}.jsonl"

@@ -120,12 +120,12 @@ def synth(params, drive: int, effects=EFFECTS):
     return recs, f1
 
 
-def noise_free(params, drive: int, records):
+def noise_free(params, drive: int, records, effects=EFFECTS):
     """The drive's measurement data with the values of its noise-free records (sensor SNR
     300 dB, the same seeds: the same phases, distortion and drift) and the standard errors
     of the noisy ones: the fit's error is then model and estimator error alone, and z is
     that bias in units of the stated std (coverage means nothing here)."""
-    clean, _ = synth(params, drive, dataclasses.replace(EFFECTS, accel_snr_db=300.0,
+    clean, _ = synth(params, drive, dataclasses.replace(effects, accel_snr_db=300.0,
                                                         force_snr_db=300.0))
     return with_clean_values([idn.measurement_data(r) for r in records],
                              [idn.measurement_data(c) for c in clean])

@@ -507,7 +507,8 @@ def test_stepped_sine_recovers_everything_within_3_sigma():
 
 @pytest.mark.slow
 def test_monte_carlo_sigma_matches_scatter(truth):
-    """Refit 16 noise realisations (harmonic domain, linear records of the stepped sine)."""
+    """Refit 64 noise realisations (harmonic domain, linear records of the stepped sine).
+    With 16 the scatter's own sampling error (18 %) made the band's edge a coin toss."""
     recs = [r for r in idn.load_records(idn.bundled_records("stepped-sine"))
             if r.force_amplitude_n < 1000 and r.speed_rpm == 2000 and
             not 900 < r.frequency_hz < 1400]
@@ -521,7 +522,7 @@ def test_monte_carlo_sigma_matches_scatter(truth):
     g = data0.groups[0]
     rng = np.random.default_rng(7)
     thetas, stds = [], []
-    for _ in range(16):
+    for _ in range(64):
         acc = np.zeros(g.sine_acc.shape, complex)
         acc[:len(clean)] = np.stack(clean)  # the records, then padding
         scale = np.where(np.isfinite(np.asarray(g.sine_scale)), np.asarray(g.sine_scale), 0.0)
@@ -536,8 +537,8 @@ def test_monte_carlo_sigma_matches_scatter(truth):
     pb.fit_data = data0
     scatter = np.std(np.asarray(thetas), axis=0, ddof=1)
     sigma = np.mean(np.asarray(stds), axis=0)
-    ratio = sigma / scatter
-    assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), ratio
+    ratio = sigma / scatter  # sampling error of the scatter: 9 %
+    assert np.all((ratio > 1 / 1.3) & (ratio < 1.3)), ratio
 
 
 def test_identification_refuses_32_bit_floats():

@@ -381,3 +381,51 @@ def test_bad_uff_frf(tmp_path, change, message):
     path = _uff_frf(tmp_path / "h.uff", **change)
     with pytest.raises(RecordError, match=message):
         load_record(path)
+
+
+AA = dict(antialias_filter="butterworth", antialias_order=8.0, antialias_cutoff_hz=4096.0,
+          antialias_design_rate_hz=40960.0)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(antialias_filter="bessel"), r"'antialias_filter = bessel' is not one of "
+                                      r"butterworth, none, linear-phase"),
+    (dict(antialias_order=0.0), r"'antialias_order = 0.0' must be an integer 1-20"),
+    (dict(antialias_order=2.5), r"'antialias_order = 2.5' must be an integer"),
+    (dict(antialias_order=None), r"'antialias_order = None' must be an integer"),
+    (dict(antialias_cutoff_hz=-5.0), r"'antialias_cutoff_hz = -5.0' must be a positive"),
+    (dict(antialias_design_rate_hz=5000.0), r"'antialias_design_rate_hz = 5000.0' must be "
+                                            r"above twice antialias_cutoff_hz \(8192 Hz\)"),
+])
+def test_bad_antialias_header(tmp_path, change, message):
+    meta = {k: v for k, v in (META | AA | change).items() if v is not None}
+    path = _write(tmp_path, _csv(meta=meta))
+    with pytest.raises(RecordError, match="rec.csv: header " + message):
+        load_record(path)
+
+
+def test_antialias_header_round_trips_and_is_divided_out(tmp_path):
+    """A stated filter survives CSV and UFF58, and the harmonics are divided by its response
+    at k f (checked against filtering a known signal with the same digital filter)."""
+    from scipy.signal import butter, sosfilt
+
+    from identification import harmonic_analysis
+
+    n, fs_hi = 8192, 4 * FS
+    t_hi = np.arange(4 * n + 4096) / fs_hi
+    clean = 100 * np.sin(2 * np.pi * 850.0 * t_hi + 0.3) + 5 * np.cos(6 * np.pi * 850.0 * t_hi)
+    filtered = sosfilt(butter(8, 4096.0, fs=fs_hi, output="sos"), clean)[4096::4]
+    t = np.arange(n) / FS
+    meta = dict(META, frequency_hz=850.0, **AA)
+    for writer, name in ((write_record_csv, "aa.csv"), (write_record_uff, "aa.uff")):
+        rec = load_record(writer(tmp_path / name, (t, filtered, 0.01 * filtered), meta))
+        assert {k: rec.meta[k] for k in AA} == AA
+        h = harmonic_analysis(rec)
+        shift = np.exp(1j * 2 * np.pi * 850.0 * h.harmonics * 4096 / fs_hi)  # the dropped start
+        want = np.array([100 * np.exp(1j * (0.3 - np.pi / 2)), 0, 5]) * shift
+        np.testing.assert_allclose(h.force, want, atol=1e-2)  # 1e-4 of the fundamental
+        np.testing.assert_allclose(h.acceleration, 0.01 * want, atol=1e-4)
+        raw = harmonic_analysis(load_record(writer(tmp_path / ("raw_" + name),
+                                                   (t, filtered, 0.01 * filtered), META
+                                                   | dict(frequency_hz=850.0))))
+        assert abs(raw.force[2] - want[2]) > 2.0  # uncorrected: the filter's phase at 2550 Hz
