@@ -66,16 +66,20 @@ def _finite(x) -> bool:
 
 def response(meta: dict, frequencies_hz) -> np.ndarray | None:
     """The stated filter's complex response at `frequencies_hz`, or None (nothing stated,
-    or a filter with nothing to correct)."""
+    or a filter with nothing to correct). In closed form (no scipy.signal import on the
+    command's path): the analog Butterworth H(s) = prod(-p_k) / prod(s - p_k), its poles
+    p_k = w_c exp(i pi (2k + n + 1) / (2n)); a digital one (bilinear, as
+    `scipy.signal.butter(..., fs=)`) is the analog one at the prewarped frequencies
+    s = i 2 fs tan(pi f / fs), w_c = 2 fs tan(pi f_c / fs)."""
     if str(meta.get("antialias_filter", "none")).strip().lower() != "butterworth":
         return None
-    from scipy.signal import butter, freqs, sosfreqz
-
-    order, cutoff = int(meta["antialias_order"]), float(meta["antialias_cutoff_hz"])
+    n, cutoff = int(meta["antialias_order"]), float(meta["antialias_cutoff_hz"])
     f = np.asarray(frequencies_hz, float)
     rate = meta.get("antialias_design_rate_hz")
     if rate is None:
-        b, a = butter(order, 2 * np.pi * cutoff, analog=True)
-        return freqs(b, a, worN=2 * np.pi * f)[1]
-    sos = butter(order, cutoff, fs=float(rate), output="sos")
-    return sosfreqz(sos, worN=f, fs=float(rate))[1]
+        wc, s = 2 * np.pi * cutoff, 2j * np.pi * f
+    else:
+        rate = float(rate)
+        wc, s = 2 * rate * np.tan(np.pi * cutoff / rate), 2j * rate * np.tan(np.pi * f / rate)
+    poles = wc * np.exp(1j * np.pi * (2 * np.arange(n) + n + 1) / (2 * n))
+    return np.prod(-poles) / np.prod(s[:, None] - poles, axis=1)

@@ -429,3 +429,22 @@ def test_antialias_header_round_trips_and_is_divided_out(tmp_path):
                                                    (t, filtered, 0.01 * filtered), META
                                                    | dict(frequency_hz=850.0))))
         assert abs(raw.force[2] - want[2]) > 2.0  # uncorrected: the filter's phase at 2550 Hz
+
+
+@pytest.mark.parametrize("order", [1, 2, 5, 8])
+def test_antialias_response_is_scipys_butterworth(order):
+    """The closed-form response equals scipy.signal's digital and analog Butterworth."""
+    from scipy.signal import butter, freqs, sosfreqz
+
+    from identification._antialias import response
+
+    f = np.linspace(1.0, 5000.0, 50)
+    digital = dict(AA, antialias_order=float(order))
+    want = sosfreqz(butter(order, 4096.0, fs=40960.0, output="sos"), worN=f, fs=40960.0)[1]
+    np.testing.assert_allclose(response(digital, f), want, rtol=0, atol=1e-12)
+    analog = {k: v for k, v in digital.items() if k != "antialias_design_rate_hz"}
+    b, a = butter(order, 2 * np.pi * 4096.0, analog=True)
+    np.testing.assert_allclose(response(analog, f), freqs(b, a, worN=2 * np.pi * f)[1],
+                               rtol=0, atol=1e-12)
+    assert response(dict(antialias_filter="linear-phase"), f) is None
+    assert response({}, f) is None
