@@ -15,6 +15,8 @@ model error at the truth (0 for an exact model).
     python scripts/robustness_noise_mc.py --drive 16 --record 5            # sine at 0.95 f1
     python scripts/robustness_noise_mc.py --drive 16 --record 5 --noise force
     python scripts/robustness_noise_mc.py --drive 16 --record 0            # the chirp
+    python scripts/robustness_noise_mc.py --drives 40 --record all --replicates 15
+                          # every record at once: the records' part of the step per drive
 
 Records: 0 the chirp, 1-8 the 100 N sines at robustness_study.RATIOS x f1, 9-10 the
 3000 N sines. `--noise force` / `acc` replicates one sensor's noise only (the other
@@ -117,16 +119,10 @@ def replicate(drive: int, record: int, replicates: int, noise: str = "both",
     is_frf = pb.layout[record][1] == 1
     w_of = (_frf_residual if is_frf else _sine_residual)(pb, theta, record)
     c = clean[record]
-    rms = lambda x: float(np.sqrt(np.mean((x - np.mean(x)) ** 2)))
-    s_f = rms(c.force) * 10 ** (-rs.EFFECTS.force_snr_db / 20) * (noise != "acc")
-    s_a = rms(c.acceleration) * 10 ** (-rs.EFFECTS.accel_snr_db / 20) * (noise != "force")
     rng = np.random.default_rng(seed)
     parts, z2, ws = [], [], []
     for _ in range(replicates):
-        rec = dataclasses.replace(c, force=c.force + rng.normal(0, s_f, c.force.size),
-                                  acceleration=c.acceleration
-                                  + rng.normal(0, s_a, c.acceleration.size))
-        w, sub = w_of(idn.measurement_data(rec))
+        w, sub = w_of(idn.measurement_data(_noisy(c, rng, noise)))
         j = jr if sub is None else jr[sub]
         share = np.diag(cov @ j.T @ j @ cov) / sd ** 2
         parts.append(cov @ j.T @ w / sd / np.sqrt(share))
@@ -145,16 +141,78 @@ def replicate(drive: int, record: int, replicates: int, noise: str = "both",
     return out
 
 
+def _noisy(c, rng, noise: str = "both"):
+    """Record `c` (noise-free) with new sensor noise at the study's SNR, as `synthesize`
+    adds it."""
+    rms = lambda x: float(np.sqrt(np.mean((x - np.mean(x)) ** 2)))
+    s_f = rms(c.force) * 10 ** (-rs.EFFECTS.force_snr_db / 20) * (noise != "acc")
+    s_a = rms(c.acceleration) * 10 ** (-rs.EFFECTS.accel_snr_db / 20) * (noise != "force")
+    return dataclasses.replace(c, force=c.force + rng.normal(0, s_f, c.force.size),
+                               acceleration=c.acceleration
+                               + rng.normal(0, s_a, c.acceleration.size))
+
+
+def replicate_drive(drive: int, replicates: int, draw: str = "uniform",
+                    seed: int = 1) -> dict:
+    """Every record's sensor noise replicated at once: the mean square over the replicates
+    of the records' part of the step (their sum; honest weights: the records' share of the
+    information, `share`), and of the sum of each record's part squared (`diag`)."""
+    pb, theta, jac, cov, clean = _problem_at_truth(drive, draw)
+    sd = np.sqrt(np.diag(cov))
+    used = pb.used_mask()
+    recs = []
+    for i, rows in enumerate(pb.record_slices()):
+        fn = _frf_residual if pb.layout[i][1] == 1 else _sine_residual
+        recs.append((jac[rows][used[rows]], fn(pb, theta, i)))
+    jd = np.concatenate([j for j, _ in recs])
+    share = np.diag(cov @ jd.T @ jd @ cov) / sd ** 2
+    rng = np.random.default_rng(seed)
+    tot, diag = [], []
+    for _ in range(replicates):
+        parts = []
+        for (jr, w_of), c in zip(recs, clean):
+            w, sub = w_of(idn.measurement_data(_noisy(c, rng)))
+            parts.append(cov @ (jr if sub is None else jr[sub]).T @ w / sd)
+        parts = np.asarray(parts)
+        tot.append(parts.sum(axis=0))
+        diag.append((parts ** 2).sum(axis=0))
+    return dict(drive=drive, names=list(pb.names), replicates=replicates,
+                total_ms=[float(x) for x in np.mean(np.square(tot), axis=0)],
+                diag_ms=[float(x) for x in np.mean(diag, axis=0)],
+                share=[float(x) for x in share])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--drive", type=int, action="append", required=True)
-    ap.add_argument("--record", type=int, required=True)
+    ap.add_argument("--drive", type=int, action="append",
+                    help="a drive (repeatable); or --drives N for drives 0..N-1")
+    ap.add_argument("--drives", type=int, default=None)
+    ap.add_argument("--record", default=None,
+                    help="record index, or 'all': every record's noise at once")
     ap.add_argument("--replicates", type=int, default=200)
     ap.add_argument("--noise", choices=("both", "force", "acc"), default="both")
     ap.add_argument("--draw", choices=("uniform", "prior"), default="uniform")
     args = ap.parse_args(argv)
-    for drive in args.drive:
-        o = replicate(drive, args.record, args.replicates, args.noise, args.draw)
+    drives = args.drive or (list(range(args.drives)) if args.drives else None)
+    if not drives or args.record is None:
+        ap.error("give --drive (or --drives) and --record")
+    if args.record == "all":
+        rows = []
+        for drive in drives:
+            rows.append(replicate_drive(drive, args.replicates, args.draw))
+            print(f"drive {drive}: records' part, mean square over "
+                  f"{args.replicates} replicates (honest: its share): " + ", ".join(
+                      f"{n} {x:.2f} ({s:.2f})" for n, x, s in zip(
+                          rows[-1]["names"], rows[-1]["total_ms"], rows[-1]["share"])),
+                  flush=True)
+        names = rows[0]["names"]
+        mean = lambda k: np.mean([r[k] for r in rows], axis=0)
+        print(f"{len(rows)} drives: " + ", ".join(
+            f"{n} {x:.2f} ({s:.2f})" for n, x, s in zip(names, mean("total_ms"),
+                                                        mean("share"))))
+        return 0
+    for drive in drives:
+        o = replicate(drive, int(args.record), args.replicates, args.noise, args.draw)
         print(f"drive {drive}, record {args.record} ({o['name']}, {o['model']}), "
               f"{o['noise']} noise, {o['replicates']} replicates: mean z^2 "
               f"{o['mean_z2']:.3f}")
