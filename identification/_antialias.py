@@ -37,7 +37,7 @@ def filter_problem(meta: dict) -> str | None:
     None."""
     if not any(k.startswith("antialias_") for k in meta):
         return None
-    kind = str(meta.get("antialias_filter", "")).strip().lower()
+    kind = _kind(meta)
     if kind not in KINDS:
         return (f"header 'antialias_filter = {meta.get('antialias_filter')}'"
                 f" is not one of {', '.join(KINDS)}; state the acquisition's "
@@ -60,6 +60,10 @@ def filter_problem(meta: dict) -> str | None:
     return None
 
 
+def _kind(meta: dict) -> str:
+    return str(meta.get("antialias_filter", "none")).strip().lower()
+
+
 def _finite(x) -> bool:
     return isinstance(x, float) and bool(np.isfinite(x))
 
@@ -71,7 +75,7 @@ def response(meta: dict, frequencies_hz) -> np.ndarray | None:
     p_k = w_c exp(i pi (2k + n + 1) / (2n)); a digital one (bilinear, as
     `scipy.signal.butter(..., fs=)`) is the analog one at the prewarped frequencies
     s = i 2 fs tan(pi f / fs), w_c = 2 fs tan(pi f_c / fs)."""
-    if str(meta.get("antialias_filter", "none")).strip().lower() != "butterworth":
+    if _kind(meta) != "butterworth":
         return None
     n, cutoff = int(meta["antialias_order"]), float(meta["antialias_cutoff_hz"])
     f = np.asarray(frequencies_hz, float)

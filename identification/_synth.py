@@ -138,13 +138,14 @@ class TestEffects:
     antialias_order: int = 8  # Butterworth order of the anti-alias filter (0: none)
 
 
-def _antialias(x, fs_high, cutoff, order=8):
+def _antialias(order, cutoff, fs_high):
+    """x -> x through the Butterworth anti-alias filter (designed once; order 0: none)."""
     from scipy.signal import butter, sosfilt
 
     if order == 0:
-        return x
+        return lambda x: x
     sos = butter(order, cutoff, fs=fs_high, output="sos")
-    return sosfilt(sos, x)
+    return lambda x: sosfilt(sos, x)
 
 
 @eqx.filter_jit
@@ -268,10 +269,10 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
     t = np.arange(n_rec) / sample_rate_hz
     f0 = meta.get("frequency_hz", float("nan"))
     records = []
+    antialias = _antialias(effects.antialias_order, cutoff, fs_hi)
     for seed, rng, (force, acc) in zip(seeds, rngs, lanes):
-        force = _antialias(force, fs_hi, cutoff, effects.antialias_order)[
-            n_settle::effects.oversample]
-        acc = _antialias(acc, fs_hi, cutoff, effects.antialias_order)[n_settle::effects.oversample]
+        force = antialias(force)[n_settle::effects.oversample]
+        acc = antialias(acc)[n_settle::effects.oversample]
         force = (force + effects.force_dc_n
                  + rng.normal(0, rms(force) * 10 ** (-effects.force_snr_db / 20), force.size))
         acc = (acc + effects.accel_dc_m_s2
