@@ -13,8 +13,10 @@ weights and a truth drawn from the prior its spread is 1 (docs/ROBUSTNESS.md, se
     python scripts/robustness_step_check.py --draw uniform --no-effects # no drift, distortion
     python scripts/robustness_step_check.py --draw uniform --noise-free # model error alone
     python scripts/robustness_step_check.py --draw uniform --first 100 --drives 300  # new seeds
+    python scripts/robustness_step_check.py --draw uniform --drives 160 --seed-offset 50
+                          # the same drives, another realisation of each test
 
-Rows: out/robustness/step_check.<draw>[.no_effects][.noise_free].jsonl (a rerun skips
+Rows: out/robustness/step_check.<draw>[.no_effects][.noise_free][.seedK].jsonl (a rerun skips
 drives already there); the summary is printed.
 """
 
@@ -44,13 +46,14 @@ def record_kind(name: str, j: int) -> str:
     return "chirp" if "chirp" in name else "3000N" if "3000N" in name else f"sine{j}"
 
 
-def problem_at_truth(drive: int, draw: str, effects=rs.EFFECTS, clean: bool = False):
+def problem_at_truth(drive: int, draw: str, effects=rs.EFFECTS, clean: bool = False,
+                     seed_offset: int = 0):
     """(problem, theta at the truth, the drive's params): the default set's problem of the
     drive's records (noise-free values with the noisy weights where `clean`), its models
     chosen and its swept records anchored at the truth."""
     params, truth = rs.draw_drive("default", drive, draw)
-    recs, _ = rs.synth(params, drive, effects)
-    data = rs.noise_free(params, drive, recs, effects) if clean else [
+    recs, _ = rs.synth(params, drive, effects, seed_offset)
+    data = rs.noise_free(params, drive, recs, effects, seed_offset) if clean else [
         idn.measurement_data(r) for r in recs]
     pb = idn.Problem(data, bsfs_jax.preset().replace("thermal.speed_rpm", rs.SPEED),
                      rs.SETS["default"])
@@ -58,8 +61,8 @@ def problem_at_truth(drive: int, draw: str, effects=rs.EFFECTS, clean: bool = Fa
     return (pb.rechosen(theta) if pb.chooses_models else pb).anchored(theta), theta, params
 
 
-def step_at_truth(drive: int, draw: str, effects, clean: bool) -> dict:
-    pb, theta, _ = problem_at_truth(drive, draw, effects, clean)
+def step_at_truth(drive: int, draw: str, effects, clean: bool, seed_offset: int = 0) -> dict:
+    pb, theta, _ = problem_at_truth(drive, draw, effects, clean, seed_offset)
     r, jac = pb.rj(theta)
     cov = np.linalg.inv(jac.T @ jac)
     sd = np.sqrt(np.diag(cov))
@@ -123,6 +126,9 @@ def main(argv=None) -> int:
                     help="records without the anti-alias filter")
     ap.add_argument("--noise-free", action="store_true",
                     help="noise-free values weighted as the noisy ones (model error alone)")
+    ap.add_argument("--seed-offset", type=int, default=0,
+                    help="another realisation of each drive's test (new phases, drift and "
+                         "noise; 1..89), to tell the population's luck from the weights'")
     ap.add_argument("--out", type=Path, default=rs.OUT)
     args = ap.parse_args(argv)
     effects = (dataclasses.replace(rs.EFFECTS, drift=0.0, h2=0.0, h3=0.0)
@@ -131,14 +137,16 @@ def main(argv=None) -> int:
         effects = dataclasses.replace(effects, antialias_order=0)
     tag = (args.draw + (".no_effects" if args.no_effects else "")
            + (".no_filter" if args.no_filter else "")
-           + (".noise_free" if args.noise_free else ""))
+           + (".noise_free" if args.noise_free else "")
+           + (f".seed{args.seed_offset}" if args.seed_offset else ""))
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"step_check.{tag}.jsonl"
     done = {r["drive"] for r in read_done(path)}
     for drive in range(args.first, args.drives):
         if drive not in done:
             try:
-                row = step_at_truth(drive, args.draw, effects, args.noise_free)
+                row = step_at_truth(drive, args.draw, effects, args.noise_free,
+                                    args.seed_offset)
             except ValueError as exc:  # a drive that cannot be synthesised (as in the study)
                 row = dict(drive=drive, error=str(exc).splitlines()[0])
             append_line(path, row)

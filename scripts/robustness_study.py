@@ -108,25 +108,31 @@ def plan(params):
     return sines, f1
 
 
-def synth(params, drive: int, effects=EFFECTS):
+def synth(params, drive: int, effects=EFFECTS, seed_offset: int = 0):
+    """The drive's records, seeded 3_000_000 + 100 drive + k (k = 0 the chirp, 1.. the
+    sines); `seed_offset` (below 90) draws another realisation of the same test: new
+    phases, drift and noise."""
+    if not 0 <= seed_offset < 90:
+        raise ValueError(f"seed_offset = {seed_offset}: use 0..89 (the drive's seed block)")
+    base = 3_000_000 + 100 * drive + seed_offset
     sines, f1 = plan(params)
     recs = [idn.synthesize(params, None, CHIRP["force"], duration_s=CHIRP["duration"],
                            sample_rate_hz=FS, excitation="chirp", start_hz=CHIRP["start"],
-                           stop_hz=CHIRP["stop"], effects=effects, seed=3_000_000 + 100 * drive)]
+                           stop_hz=CHIRP["stop"], effects=effects, seed=base)]
     for j, (f, force, sweep) in enumerate(sines):
         recs.append(idn.synthesize(params, f, force, duration_s=SINE_S, sample_rate_hz=FS,
                                    effects=effects, sweep=sweep,
-                                   seed=3_000_000 + 100 * drive + 1 + j))
+                                   seed=base + 1 + j))
     return recs, f1
 
 
-def noise_free(params, drive: int, records, effects=EFFECTS):
+def noise_free(params, drive: int, records, effects=EFFECTS, seed_offset: int = 0):
     """The drive's measurement data with the values of its noise-free records (sensor SNR
     300 dB, the same seeds: the same phases, distortion and drift) and the standard errors
     of the noisy ones: the fit's error is then model and estimator error alone, and z is
     that bias in units of the stated std (coverage means nothing here)."""
     clean, _ = synth(params, drive, dataclasses.replace(effects, accel_snr_db=300.0,
-                                                        force_snr_db=300.0))
+                                                        force_snr_db=300.0), seed_offset)
     return with_clean_values([idn.measurement_data(r) for r in records],
                              [idn.measurement_data(c) for c in clean])
 
