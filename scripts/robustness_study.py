@@ -22,6 +22,7 @@ the default preset as prior with the default priors, 3 starts, the staged multi-
     python scripts/robustness_study.py --report-only          # docs/ROBUSTNESS.md tables
     python scripts/robustness_study.py --set default --draw prior   # drives from the prior
     python scripts/robustness_study.py --set preload --noise-free --drives 30
+    python scripts/robustness_study.py --set default --no-priors    # maximum likelihood
                                                   # the bias of model and estimator alone
 
 Each drive is appended as one JSON line to out/robustness/<set>.jsonl (fsynced); a rerun
@@ -164,7 +165,8 @@ def failure_cause(res, cost_fit, cost_truth) -> str | None:
     return None
 
 
-def run_drive(kind: str, drive: int, clean: bool = False, draw: str = "uniform") -> dict:
+def run_drive(kind: str, drive: int, clean: bool = False, draw: str = "uniform",
+              priors="default") -> dict:
     params, truth = draw_drive(kind, drive, draw)
     t0 = time.perf_counter()
     row = dict(drive=drive, truth=truth)
@@ -177,7 +179,7 @@ def run_drive(kind: str, drive: int, clean: bool = False, draw: str = "uniform")
     t1 = time.perf_counter()
     try:
         res = idn.identify(recs, bsfs_jax.preset().replace("thermal.speed_rpm", SPEED),
-                           SETS[kind])
+                           SETS[kind], priors=priors)
     except Exception as exc:  # noqa: BLE001 - recorded as a failure cause
         traceback.print_exc()
         return dict(row, f1_hz=f1, cause=f"exception: {type(exc).__name__}: {exc}"
@@ -287,6 +289,10 @@ def main(argv=None) -> int:
     ap.add_argument("--noise-free", action="store_true",
                     help="fit noise-free records weighted as the noisy ones (z = the bias of "
                          "model and estimator in stated stds); rows in <set>.noise_free.jsonl")
+    ap.add_argument("--no-priors", action="store_true",
+                    help="maximum likelihood (`identify --no-priors`): intervals from the "
+                         "data alone, no pull towards the prior; rows in "
+                         "<set>[...].no_priors.jsonl")
     ap.add_argument("--out", type=Path, default=OUT,
                     help=f"results folder (default {OUT.relative_to(ROOT)})")
     args = ap.parse_args(argv)
@@ -295,15 +301,17 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     commit = _commit()
     for kind in kinds:
-        tag = (".prior" if args.draw == "prior" else "") + (".noise_free" if args.noise_free
-                                                             else "")
+        tag = ((".prior" if args.draw == "prior" else "")
+               + (".noise_free" if args.noise_free else "")
+               + (".no_priors" if args.no_priors else ""))
         path = out / f"{kind}{tag}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
             for drive in range(args.first, args.drives):
                 if drive in done:
                     continue
-                row = dict(run_drive(kind, drive, args.noise_free, args.draw), commit=commit)
+                row = dict(run_drive(kind, drive, args.noise_free, args.draw,
+                                     None if args.no_priors else "default"), commit=commit)
                 append_line(path, row)
                 print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
                       f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
