@@ -64,6 +64,12 @@ def _kind(meta: dict) -> str:
     return str(meta.get("antialias_filter", "none")).strip().lower()
 
 
+def cutoff_hz(meta: dict) -> float | None:
+    """The stated filter's cutoff [Hz], or None where no filter is stated."""
+    c = meta.get("antialias_cutoff_hz")
+    return float(c) if _kind(meta) != "none" and _finite(c) else None
+
+
 def _finite(x) -> bool:
     return isinstance(x, float) and bool(np.isfinite(x))
 

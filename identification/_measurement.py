@@ -48,12 +48,16 @@ import numpy as np
 
 from bsfs_jax.machine import tangent_matrices
 
+from ._antialias import cutoff_hz as antialias_cutoff
 from ._antialias import response as antialias_response
 from ._records import Record
+from ._sine_noise import noise_variance
 
 N_HARMONICS = 3
 DRIFT_ORDER = 2
 NONLINEAR_SAMPLES = 64
+#: The least noise variance a sine record is credited with, relative to its power (120 dB).
+NOISE_FLOOR = 1e-12
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +67,8 @@ class HarmonicData:
     - `frequency_hz`: refined excitation frequency; `harmonics`: (H,) k = 1..H;
     - `force`, `acceleration`: (H,) complex coefficients c_k, signal = Re(sum c_k e^{i k w t});
     - `force_var`, `acceleration_var`: (H, 2) variances of (Re c_k, Im c_k);
-    - `force_noise`, `acceleration_noise`: residual RMS of the fits [N, m/s^2];
+    - `force_noise`, `acceleration_noise`: the sensors' noise RMS, read between the harmonic
+      lines of the fits' residuals (`_sine_noise.py`) [N, m/s^2];
     - `force_dc`, `acceleration_dc`: mean offsets; `n_samples`; `record`;
     - `force_rate`, `force_rate2`: (H,) complex means over the record of the first and
       second time derivatives of each force harmonic's envelope [N/s, N/s^2] (the drifting
@@ -114,7 +119,7 @@ def _fit(x, t, f, n_harm, drift_order):
     resid = x - np.einsum("ij,j->i", a, coef)
     dof = x.size - a.shape[1]
     s2 = float(resid @ resid) / dof
-    return coef, s2 * np.diag(ata_inv), s2
+    return coef, s2 * np.diag(ata_inv), s2, resid
 
 
 def _blocks(x, n_harm, drift_order):
@@ -180,8 +185,17 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
     f = refine_frequency(record, n_harmonics)
     t = record.time
     out = {}
+    cutoff = antialias_cutoff(record.meta)
     for name, x in (("force", record.force), ("acceleration", record.acceleration)):
-        coef, cov_diag, s2 = _fit(x, t, f, n_harmonics, drift_order)
+        coef, cov_diag, s2, resid = _fit(x, t, f, n_harmonics, drift_order)
+        # The noise between the harmonic lines: the residual also holds the harmonics
+        # above n_harmonics, which are signal (`_sine_noise.py`).
+        # Floored at 120 dB below the record's power: no sensor is cleaner, and a
+        # noise-free synthetic record would otherwise get weights of round-off.
+        s2_lines = noise_variance(resid, f, record.sample_rate_hz, cutoff)
+        if s2_lines is not None and s2 > 0:
+            s2_lines = max(s2_lines, NOISE_FLOOR * float(np.mean((x - np.mean(x)) ** 2)))
+            cov_diag, s2 = cov_diag * (s2_lines / s2), s2_lines
         out[name] = (*_unpack(coef, cov_diag, n_harmonics, drift_order), float(np.sqrt(s2)))
     (fdc, fc, fvar, fenv, fn), (adc, ac, avar, _, an) = out["force"], out["acceleration"]
     harmonics = np.arange(1, n_harmonics + 1)
