@@ -82,9 +82,9 @@ def same_orbits(theta, a: FitData, b: FitData, structure: Structure) -> bool:
         x, y = np.asarray(sa)[swept], np.asarray(sb)[swept]
         scale = np.asarray(g.sine_scale)[swept]
         used = np.isfinite(scale)
-        d = np.stack([(x - y).real, (x - y).imag], axis=-1)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
             return False
+        d = np.stack([(x - y).real, (x - y).imag], axis=-1)
         if np.any(np.abs(np.where(used, d / np.where(used, scale, 1.0), 0.0))
                   > SAME_ORBIT_STD):
             return False
