@@ -79,7 +79,8 @@ def step_at_truth(drive: int, draw: str, effects, clean: bool, seed_offset: int 
                             share=list(share)))
     # Maximum likelihood (`identify --no-priors`): the step from the data rows alone, in
     # its own standard errors; no prior, so no pull towards the prior's centre.
-    jd, rd = jac[np.arange(nd)[used]], r[np.arange(nd)[used]]
+    data_rows = np.arange(nd)[used]
+    jd, rd = jac[data_rows], r[data_rows]
     cov_ml = np.linalg.inv(jd.T @ jd)
     ml_step = list(-(cov_ml @ (jd.T @ rd)) / np.sqrt(np.diag(cov_ml)))
     return dict(drive=drive, names=list(pb.names), step=pull(np.arange(r.size)),
