@@ -118,9 +118,8 @@ def _fit(x, t, f, n_harm, drift_order):
     coef = ata_inv @ np.einsum("ij,i->j", a, x)
     resid = x - np.einsum("ij,j->i", a, coef)
     dof = x.size - a.shape[1]
-    # (coefficients, their variances per unit noise variance, the residual's variance,
-    # the residual)
-    return coef, np.diag(ata_inv), float(resid @ resid) / dof, resid
+    s2 = float(resid @ resid) / dof
+    return coef, s2 * np.diag(ata_inv), s2, resid
 
 
 def _blocks(x, n_harm, drift_order):
@@ -188,16 +187,16 @@ def harmonic_analysis(record: Record, n_harmonics: int = N_HARMONICS,
     out = {}
     cutoff = antialias_cutoff(record.meta)
     for name, x in (("force", record.force), ("acceleration", record.acceleration)):
-        coef, unit_var, s2, resid = _fit(x, t, f, n_harmonics, drift_order)
+        coef, cov_diag, s2, resid = _fit(x, t, f, n_harmonics, drift_order)
         # The noise between the harmonic lines: the residual also holds the harmonics
-        # above n_harmonics, which are signal (`_sine_noise.py`). Floored at 120 dB below
-        # the record's power: no sensor is cleaner, and a noise-free synthetic record
-        # would otherwise get weights of round-off.
+        # above n_harmonics, which are signal (`_sine_noise.py`).
+        # Floored at 120 dB below the record's power: no sensor is cleaner, and a
+        # noise-free synthetic record would otherwise get weights of round-off.
         s2_lines = noise_variance(resid, f, record.sample_rate_hz, cutoff)
         if s2_lines is not None and s2 > 0:
-            s2 = max(s2_lines, NOISE_FLOOR * float(np.var(x)))
-        out[name] = (*_unpack(coef, s2 * unit_var, n_harmonics, drift_order),
-                     float(np.sqrt(s2)))
+            s2_lines = max(s2_lines, NOISE_FLOOR * float(np.mean((x - np.mean(x)) ** 2)))
+            cov_diag, s2 = cov_diag * (s2_lines / s2), s2_lines
+        out[name] = (*_unpack(coef, cov_diag, n_harmonics, drift_order), float(np.sqrt(s2)))
     (fdc, fc, fvar, fenv, fn), (adc, ac, avar, _, an) = out["force"], out["acceleration"]
     harmonics = np.arange(1, n_harmonics + 1)
     rates = _envelope_rates(fenv, t[-1] - t[0])
