@@ -122,7 +122,20 @@ def _stage_lines(fr) -> list[str]:
             f"{st['reached_best']} reached the best cost ({st['distinct_optima']} distinct "
             f"optim{'um' if st['distinct_optima'] == 1 else 'a'}); the full fit started from "
             + ("it." if st.get("full_fit_starts", 1) == 1 else
-               f"the {st['full_fit_starts']} lowest.")]
+               f"the {st['full_fit_starts']} lowest.")] + _rescue_lines(st)
+
+
+def _rescue_lines(st) -> list[str]:
+    r = st.get("rescue")
+    if not r:
+        return []
+    costs = ", ".join(f"{c:.6g}" for c in r["costs"])
+    return [f"Its estimate left {', '.join(r['records'])} outside their noise (cost "
+            f"{r['cost_before']:.6g}), so the full fit ran again from {r['starts']} starts "
+            "(that estimate, and the first stage's optimum moved two of its standard "
+            "deviations either way along its two least determined directions): costs "
+            f"{costs}; " + ("the lowest is the estimate." if r["taken"] else
+                            "none lower, the estimate stands.")]
 
 
 def _branch_lines(res) -> list[str]:

@@ -23,6 +23,8 @@ the default preset as prior with the default priors, 3 starts, the staged multi-
     python scripts/robustness_study.py --set default --draw prior   # drives from the prior
     python scripts/robustness_study.py --set preload --noise-free --drives 30
     python scripts/robustness_study.py --set default --no-priors    # maximum likelihood
+    python scripts/robustness_study.py --set default --seed-offset 10  # another realisation
+    python scripts/robustness_study.py --set default --pool A.jsonl B.jsonl  # pooled summary
                                                   # the bias of model and estimator alone
 
 Each drive is appended as one JSON line to out/robustness/<set>.jsonl (fsynced); a rerun
@@ -166,14 +168,16 @@ def failure_cause(res, cost_fit, cost_truth) -> str | None:
 
 
 def run_drive(kind: str, drive: int, clean: bool = False, draw: str = "uniform",
-              priors="default") -> dict:
+              priors="default", seed_offset: int = 0) -> dict:
     params, truth = draw_drive(kind, drive, draw)
     t0 = time.perf_counter()
     row = dict(drive=drive, truth=truth)
+    if seed_offset:
+        row["seed_offset"] = seed_offset
     try:
-        recs, f1 = synth(params, drive)
+        recs, f1 = synth(params, drive, seed_offset=seed_offset)
         if clean:
-            recs = noise_free(params, drive, recs)
+            recs = noise_free(params, drive, recs, seed_offset=seed_offset)
     except Exception as exc:  # noqa: BLE001 - a drive the simulation cannot run
         return dict(row, cause=f"synthesis failed: {exc}".splitlines()[0], converged=False)
     t1 = time.perf_counter()
@@ -272,6 +276,20 @@ def _commit() -> str:
                                       "identification").strip() else "")
 
 
+def _pooled(paths, kinds) -> int:
+    """Print the summary of several row files' drives together (one fit set)."""
+    if len(kinds) != 1:
+        raise SystemExit("--pool needs one --set")
+    rows = [r for p in paths for r in read_done(p)]
+    if not rows:
+        raise SystemExit(f"no rows in {', '.join(map(str, paths))}")
+    s = summarize(rows, kinds[0])
+    s["commits"] = sorted({r.get("commit", "unrecorded") for r in rows})
+    print(f"Pooled: {', '.join(str(p) for p in paths)}\n")
+    print(markdown(s))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--set", choices=sorted(SETS), action="append",
@@ -293,17 +311,28 @@ def main(argv=None) -> int:
                     help="maximum likelihood (`identify --no-priors`): intervals from the "
                          "data alone, no pull towards the prior; rows in "
                          "<set>[...].no_priors.jsonl")
+    ap.add_argument("--seed-offset", type=int, default=0,
+                    help="another realisation of every drive's test (new phases, drift and "
+                         "noise; 1..89; the same truths): the study's coverage is one draw "
+                         "of the tests, this measures how much it varies; rows in "
+                         "<set>[...].seedK.jsonl")
+    ap.add_argument("--pool", type=Path, nargs="+", metavar="ROWS",
+                    help="summarise these row files together (realisations of the same "
+                         "drives, e.g. the study's rows and --seed-offset runs) and stop")
     ap.add_argument("--out", type=Path, default=OUT,
                     help=f"results folder (default {OUT.relative_to(ROOT)})")
     args = ap.parse_args(argv)
     kinds = args.set or ["preload", "default"]
+    if args.pool:
+        return _pooled(args.pool, kinds)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     commit = _commit()
     for kind in kinds:
         tag = ((".prior" if args.draw == "prior" else "")
                + (".noise_free" if args.noise_free else "")
-               + (".no_priors" if args.no_priors else ""))
+               + (".no_priors" if args.no_priors else "")
+               + (f".seed{args.seed_offset}" if args.seed_offset else ""))
         path = out / f"{kind}{tag}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
@@ -311,7 +340,8 @@ def main(argv=None) -> int:
                 if drive in done:
                     continue
                 row = dict(run_drive(kind, drive, args.noise_free, args.draw,
-                                     None if args.no_priors else "default"), commit=commit)
+                                     None if args.no_priors else "default",
+                                     args.seed_offset), commit=commit)
                 append_line(path, row)
                 print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
                       f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
