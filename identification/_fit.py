@@ -26,6 +26,7 @@ import numpy as np
 from ._anchors import MAX_ROUNDS, anchored, settle
 from ._groups import masked_orbit_records
 from ._lm import NO_INFORMATION_STD, gn_step_sigma
+from ._misfit import record_chi_squares
 from ._modal import modal_estimate, modal_starts
 from ._problem import Problem
 from ._solve import SolveOptions, solve
@@ -86,12 +87,15 @@ class FitResult:
     def convergence_text(self) -> str:
         agree, total = self.starts_agreeing, self.starts_total
         rescue = (self.stage1 or {}).get("rescue") or {}
-        via = (f" (the rescue's starts: the full fit from the first stage's optimum left "
-               f"{', '.join(rescue['records'])} outside their noise at "
-               f"{rescue['cost_before']:.6g})" if rescue.get("taken") else
-               f" (through {sum(s['same_minimum'] for s in self.starts)} of "
-               f"{len(self.starts)} first-stage optima)"
-               if self.stage1 and self.stage1.get("stage") else "")
+        if rescue.get("taken"):
+            via = (f" (the rescue's starts: the full fit from the first stage's optimum "
+                   f"left {', '.join(rescue['records'])} outside their noise at "
+                   f"{rescue['cost_before']:.6g})")
+        elif self.stage1 and self.stage1.get("stage"):
+            via = (f" (through {sum(s['same_minimum'] for s in self.starts)} of "
+                   f"{len(self.starts)} first-stage optima)")
+        else:
+            via = ""
         if self.converged:
             return (f"converged: the remaining Gauss-Newton step is {self.remaining_step:.1e} "
                     f"of its standard error; {agree}/{total} starts reached the same "
@@ -243,7 +247,8 @@ def staged_starts(problem: Problem, pts, starts: int, options: SolveOptions, mod
     full fit starts from each distinct optimum (lowest cost first, at most max(`starts`,
     `FULL_STARTS`)); each carries the number of quasi-random starts that reached it (its
     basin), so agreement among starts is counted in the original starts.
-    Returns (points, basin counts, summary dict for the report)."""
+    Returns (points, basin counts, summary dict for the report, the first stage's
+    Jacobian at its best optimum, points[0]; None without a first stage)."""
     cheap = sum(m != "nonlinear" for m in problem.models)
     keep = max(1, starts, FULL_STARTS)
     if not cheap:
@@ -252,7 +257,7 @@ def staged_starts(problem: Problem, pts, starts: int, options: SolveOptions, mod
         # the true damping, and the full fit from it stopped in a local minimum at 1.5e6
         # times the cost at the truth). The full fit starts from the quasi-random starts.
         return pts[:keep], [1] * keep, dict(stage=None, records=0, starts=keep,
-                                            first_estimate=modal)
+                                            first_estimate=modal), None
     # The first stage is the full problem with the orbit records' rows masked
     # (`masked_orbit_records`): the same compiled program as the full fit.
     out = solve(np.stack(pts), True, masked_orbit_records(problem.fit_data),
@@ -278,7 +283,9 @@ def staged_starts(problem: Problem, pts, starts: int, options: SolveOptions, mod
                    records=cheap, starts=len(pts),
                    reached_best=int(same.sum()), distinct_optima=len(distinct),
                    full_fit_starts=min(keep, len(distinct)), first_estimate=modal)
-    return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary
+    jac = np.asarray(out["jacobian"][distinct[0]])[
+        problem._residual_rows(out["residual"].shape[1])]
+    return [out["theta"][i] for i in distinct[:keep]], basin[:keep], summary, jac
 
 
 def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 100,
@@ -312,14 +319,15 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
         on_models(problem)
     if warm_start and "nonlinear" in problem.models:
         # A staged fit: the cheap records first, from many starts (`staged_starts`).
-        points, weights, stage1 = staged_starts(problem, pts, starts, options, modal)
+        points, weights, stage1, jac1 = staged_starts(problem, pts, starts, options, modal)
+        theta1 = points[0]  # the first stage's best optimum (before theta0 replaces it)
     else:
         points = start_points(problem, starts, seed)
     if theta0 is not None:
         points[0] = np.asarray(theta0, float)
     result = _fit_from(problem, points, options, weights)
     if stage1 is not None and stage1.get("stage"):
-        result, rescued = rescue(problem, result, points[0], options, stage1)
+        result, rescued = rescue(problem, result, theta1, jac1, options, stage1)
         if rescued:
             weights = None  # the rescue's starts stand for themselves
     if check_models and problem.chooses_models:
@@ -344,11 +352,11 @@ def fit(problem: Problem, *, starts: int = 3, seed: int = 0, max_steps: int = 10
 
 def misfit_records(problem: Problem, residual) -> list[str]:
     """Records whose mean squared weighted residual exceeds `RESCUE_MEAN_Z2`."""
-    return [d.name for d, ri in zip(problem.data, problem.record_residuals(residual))
-            if ri.size and float(np.mean(np.square(ri))) > RESCUE_MEAN_Z2]
+    return [name for name, chi2, n in record_chi_squares(problem, residual)
+            if chi2 / n > RESCUE_MEAN_Z2]
 
 
-def rescue(problem: Problem, result: FitResult, theta1, options: SolveOptions,
+def rescue(problem: Problem, result: FitResult, theta1, jac1, options: SolveOptions,
            stage1: dict):
     """(result, taken): a staged fit whose estimate leaves a record far outside its noise
     (`misfit_records`) fitted again from more starts. Where every first-stage start
@@ -357,17 +365,16 @@ def rescue(problem: Problem, result: FitResult, theta1, options: SolveOptions,
     906 (log-uniform default set) converged there with its 24 starts "agreeing", at 1.4
     times the truth's cost, nut_k 175 standard errors off, its two 3000 N records at 9-12
     times their noise. The new starts: the estimate, and the first stage's optimum
-    `theta1` moved `RESCUE_SD` of its standard deviations either way along the two
-    directions its records determine least (those the left-out records decide; for drive
+    `theta1` (its Jacobian there `jac1`, from the first stage's solve) moved `RESCUE_SD`
+    of its standard deviations either way along the two directions its records determine
+    least (those the left-out records decide; for drive
     906 the nut's Hertz coefficient against the thermal expansion). The lowest cost wins;
     convergence is then judged among these starts alone (two must agree), so a minimum
     that one start found says "not converged". `stage1["rescue"]` records it."""
     names = misfit_records(problem, result.residual)
     if not names:
         return result, False
-    _, j = problem.rj(theta1, masked_orbit_records(problem.fit_data))
-    j = np.asarray(j)
-    j = j[np.all(np.isfinite(j), axis=1)]
+    j = jac1[np.all(np.isfinite(jac1), axis=1)]
     var, vec = np.linalg.eigh(np.linalg.pinv(j.T @ j))
     sd = np.sqrt(np.clip(var, 0.0, None))
     pts = [np.asarray(result.theta, float)] + [

@@ -19,12 +19,16 @@ RECORD_MISFIT = 100.0
 MIN_RECORDS_COMPARED = 3
 
 
+def record_chi_squares(problem, residual) -> list[tuple[str, float, int]]:
+    """(name, sum of squared weighted residuals, entries) of each record with entries."""
+    return [(d.name, float(ri @ ri), ri.size)
+            for d, ri in zip(problem.data, problem.record_residuals(residual)) if ri.size]
+
+
 def record_misfits(result) -> list[tuple[str, float, float]]:
     """Records whose residual at the estimate the model leaves unexplained while the other
     records are explained: (name, share of the chi-square, residual / noise RMS)."""
-    pb = result.problem
-    rows = [(d.name, float(ri @ ri), ri.size)
-            for d, ri in zip(pb.data, pb.record_residuals(result.residual)) if ri.size]
+    rows = record_chi_squares(result.problem, result.residual)
     if len(rows) < MIN_RECORDS_COMPARED:
         return []
     total = sum(c for _, c, _ in rows)

@@ -276,6 +276,12 @@ def _commit() -> str:
                                       "identification").strip() else "")
 
 
+def _summary(rows: list[dict], kind: str) -> dict:
+    """`summarize` with the code commits the rows came from."""
+    return dict(summarize(rows, kind),
+                commits=sorted({r.get("commit", "unrecorded") for r in rows}))
+
+
 def _pooled(paths, kinds) -> int:
     """Print the summary of several row files' drives together (one fit set)."""
     if len(kinds) != 1:
@@ -283,8 +289,7 @@ def _pooled(paths, kinds) -> int:
     rows = [r for p in paths for r in read_done(p)]
     if not rows:
         raise SystemExit(f"no rows in {', '.join(map(str, paths))}")
-    s = summarize(rows, kinds[0])
-    s["commits"] = sorted({r.get("commit", "unrecorded") for r in rows})
+    s = _summary(rows, kinds[0])
     print(f"Pooled: {', '.join(str(p) for p in paths)}\n")
     print(markdown(s))
     return 0
@@ -348,9 +353,8 @@ def main(argv=None) -> int:
         rows = [r for r in read_done(path) if r["drive"] < args.drives]
         if not rows:
             continue
-        s = summarize(rows, kind)
+        s = _summary(rows, kind)
         s["machine"] = f"{platform.machine()}, {platform.python_version()}"
-        s["commits"] = sorted({r.get("commit", "unrecorded") for r in rows})
         (out / f"{kind}{tag}_summary.json").write_text(json.dumps(s, indent=1))
         md = markdown(s)
         (out / f"{kind}{tag}_summary.md").write_text(md)
