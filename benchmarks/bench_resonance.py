@@ -126,7 +126,21 @@ def markdown(r) -> str:
               "alternating with the code before (2bca6ba), each in a fresh cache: 27.4 and "
               "28.0 s cold against 24.4 and 24.5 s, 6.4 and 6.5 s warm against 5.9 and 6.0 s, "
               "32 programs against 31 (that hour ran about 11 % slower than this table's "
-              "run)."]
+              "run).",
+              "",
+              "Session 24 (2026-11-29 18:11-18:20, an Intel Xeon machine about 1.9x "
+              "slower than this table's AMD EPYC run: the base code's cold run took "
+              "42.8-55.5 s against 24.4-24.9 s): the preload "
+              "set, the head (ce149c5: sessions 20-23's force-sensor noise, sine noise, "
+              "anti-alias filter and rescue) alternating with 2bca6ba, three rounds each "
+              "(`bench_ab.py --base 2bca6ba --only 'identify resonance'`): cold 55.7, 52.7, 53.2 "
+              "s against 47.3, 55.5, 42.8 s (medians 53.2 / 47.3 = 1.12), warm 12.6, 12.4, 12.1 s"
+              " against 11.7, 12.3, 12.0 s (1.01), 32 / 28 programs against 31 / 27. Scaled to "
+              "this table's run, about 28 s cold and 5.6 s warm: the targets still hold, the cold"
+              " one by about 2 s. The critical path on that machine: the fit's solve traced in "
+              "5.2 s and compiled in 13.7 s, then the branch kernel's compilation (9.3 s, traced "
+              "beside the solve on the prefetch thread, compiled after it), then the check's "
+              "prediction and compliance programs (3.4 and 1.6 s)."]
     return "\n".join(lines) + "\n"
 
 

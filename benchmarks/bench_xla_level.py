@@ -1,0 +1,86 @@
+"""XLA's backend optimisation level for every program, cold and warm (issue 19).
+
+A measured question: would compiling every program at a lower LLVM optimisation level
+(`XLA_FLAGS=--xla_backend_optimization_level=1` or `0`; the default is 2) shorten a cold
+command enough to set it for every run? `cached_jit(fast_compile=True)` already compiles
+the fit's solve and the branch kernel at level 1. Each command of `bench_cold.py` named
+runs cold (empty cache) then warm, once per level, the levels one after another per
+command; warm runs show what the level costs in execution.
+
+    python benchmarks/bench_xla_level.py [--only continue,sweep,map,sensitivity]
+
+writes benchmarks/results/xla_level.json and .md (a section of BENCHMARKS.md). Not part
+of `run_all.py`: it answers one question and is run again only when that is asked anew.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import bench_cold  # noqa: E402
+from _cli import write_result  # noqa: E402
+
+LEVELS = {"2 (default)": "", "1": "--xla_backend_optimization_level=1",
+          "0": "--xla_backend_optimization_level=0"}
+DEFAULT_ONLY = "continue,sweep,map,sensitivity"
+
+
+def markdown(r) -> str:
+    m = r["machine"]
+    lines = ["## C3: XLA's backend optimisation level for every program (issue 19)", "",
+             f"Machine: {m.get('cpu', 'CPU')}, {m.get('cores', '?')} cores; jax "
+             f"{m.get('jax', '?')}; {r['date']}; commit {r.get('commit', '?')}. "
+             "`python benchmarks/bench_xla_level.py` (one fresh process per run; per "
+             "command the levels one after another, each cold then warm).", "",
+             "| command | level | cold wall | compile | programs | warm wall | warm run |",
+             "|---|---|---|---|---|---|---|"]
+    for row in r["rows"]:
+        c, w = row["cold"], row["warm"]
+        lines.append(f"| `{row['command']}` | {row['level']} | {c['wall_s']:.1f} s | "
+                     f"{c['compile_s']:.1f} s | {c['compiles']:.0f} | {w['wall_s']:.1f} s | "
+                     f"{w['run_s']:.1f} s |")
+    lines += ["", r.get("verdict", "")]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default=DEFAULT_ONLY, help="comma-separated bench_cold names")
+    args = ap.parse_args(argv)
+    from _machine import machine_info
+
+    info = machine_info()
+    names = set(args.only.split(","))
+    rows = []
+    saved = os.environ.get("XLA_FLAGS")
+    with tempfile.TemporaryDirectory(prefix="bench_xla_level_") as tmp:
+        for name, cmd, target, writes in bench_cold.COMMANDS:
+            if name not in names:
+                continue
+            for level, flags in LEVELS.items():
+                os.environ["XLA_FLAGS"] = flags  # the child processes' environment
+                folder = Path(tmp) / f"level{level.split()[0]}"
+                folder.mkdir(exist_ok=True)
+                print(f"{name}, level {level}", flush=True)
+                res = bench_cold.measure(name, cmd, target, writes, 1, folder)
+                rows.append(dict(command=res["command"], level=level, cold=res["cold"],
+                                 warm=res["warm"]))
+    if saved is None:
+        os.environ.pop("XLA_FLAGS", None)
+    else:
+        os.environ["XLA_FLAGS"] = saved
+    result = dict(date=info["date_utc"][:16], machine=info, rows=rows)
+    write_result("xla_level", result, markdown(result))
+    print(f"wrote {bench_cold.RESULTS / 'xla_level'}.json and .md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
