@@ -46,8 +46,26 @@ def markdown(r) -> str:
         lines.append(f"| `{row['command']}` | {row['level']} | {c['wall_s']:.1f} s | "
                      f"{c['compile_s']:.1f} s | {c['compiles']:.0f} | {w['wall_s']:.1f} s | "
                      f"{w['run_s']:.1f} s |")
-    lines += ["", r.get("verdict", "")]
-    return "\n".join(lines).rstrip() + "\n"
+    lines += ["", "Against level 2, per command (compile seconds, warm run seconds): "
+              + "; ".join(_ratios(r["rows"])) + "."]
+    if r.get("verdict"):  # the conclusion, written by whoever ran it
+        lines += ["", r["verdict"]]
+    return "\n".join(lines) + "\n"
+
+
+def _ratios(rows) -> list[str]:
+    """Each command's compile and warm-run seconds at levels 1 and 0 over level 2's."""
+    base = {row["command"]: row for row in rows if row["level"] == "2 (default)"}
+    out = []
+    for row in rows:
+        b = base.get(row["command"])
+        if b is None or row is b:
+            continue
+        name = row["command"].split()[1]
+        out.append(f"`{name}` level {row['level']}: "
+                   f"{row['cold']['compile_s'] / b['cold']['compile_s']:.2f}x, "
+                   f"{row['warm']['run_s'] / b['warm']['run_s']:.2f}x")
+    return out
 
 
 def main(argv=None) -> int:
@@ -59,7 +77,6 @@ def main(argv=None) -> int:
     info = machine_info()
     names = set(args.only.split(","))
     rows = []
-    saved = os.environ.get("XLA_FLAGS")
     with tempfile.TemporaryDirectory(prefix="bench_xla_level_") as tmp:
         for name, cmd, target, writes in bench_cold.COMMANDS:
             if name not in names:
@@ -72,10 +89,6 @@ def main(argv=None) -> int:
                 res = bench_cold.measure(name, cmd, target, writes, 1, folder)
                 rows.append(dict(command=res["command"], level=level, cold=res["cold"],
                                  warm=res["warm"]))
-    if saved is None:
-        os.environ.pop("XLA_FLAGS", None)
-    else:
-        os.environ["XLA_FLAGS"] = saved
     result = dict(date=info["date_utc"][:16], machine=info, rows=rows)
     write_result("xla_level", result, markdown(result))
     print(f"wrote {bench_cold.RESULTS / 'xla_level'}.json and .md")
