@@ -23,6 +23,8 @@ argument without a stable text, an output that is not built of tuples, lists and
 arrays, an export error), the call is plain `filter_jit`, so results never depend on it.
 A stale or unreadable file is exported again and replaced (written atomically).
 
+Prefetches (`cached_jit`'s `prefetch`) run on the background threads of `_prefetch`.
+
 `cached_jit(fn, fast_compile=True)` compiles the kept program with XLA's backend (LLVM)
 optimisation at level 1 instead of 2: for a large program that runs for a fraction of a
 second (the identification's solve and branch check) XLA's compilation is about 15 %
@@ -33,7 +35,6 @@ level 2's to rounding (an identification's report to 1e-14 relative). The plain
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -41,7 +42,6 @@ import importlib.metadata
 import inspect
 import logging
 import os
-import queue
 import re
 import sys
 import threading
@@ -53,7 +53,15 @@ import jax
 import numpy as np
 from jax import export
 
+from . import _prefetch as _background
 from ._files import write_bytes_atomic
+from ._prefetch import (  # noqa: F401 - re-exported: the prefetch API lives here too
+    compile_in_background,
+    foreground_compile,
+    in_background,
+    prefetch_jit,
+    settle,
+)
 
 _DISABLED = os.environ.get("BSFS_PROGRAM_CACHE", "1") == "0"
 _LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "diffrax", "numpy")
@@ -61,8 +69,6 @@ _ADDRESS = re.compile(r" at 0x[0-9a-f]+")
 _log = logging.getLogger(__name__)
 _loaded: dict[str, object] = {}  # key -> jitted caller of the deserialised program
 _pending: dict[str, Future] = {}  # key -> a prefetch's future caller (`prefetch`)
-_queue: queue.SimpleQueue | None = None  # the prefetch worker's jobs
-_waiting: list[threading.Event] = []  # prefetches waiting for the next hand-off to XLA
 # One export at a time: two threads exporting at once made one fail inside jax
 # ("StoreException: Store occupied"; the continuation's corrector was then not kept).
 _export_lock = threading.Lock()
@@ -71,15 +77,6 @@ _export_lock = threading.Lock()
 # rows of `bsfs map` continue on two threads with one corrector).
 _obtaining: dict[str, Future] = {}
 _obtaining_lock = threading.Lock()
-_WORKER = "bsfs-prefetch"
-# XLA compilations outside the prefetch thread have the right of way: a prefetch traces
-# beside one (Python, while XLA leaves the interpreter free) but starts its own
-# compilation only once none is running. Two compilations at once in one process were
-# slower than one after the other: in a cold `bsfs sensitivity` the continuation's
-# corrector took 7.9 s and the gradient's program 6.5 s side by side, 3.4 s and 4.2 s
-# alone.
-_foreground = threading.Condition()
-_foreground_compiles = 0
 
 
 @functools.cache
@@ -216,83 +213,6 @@ def _caller(fn, static, treedef, leaves, key: str, folder: Path, options=None):
     return _jit_call(exp, fn.__name__, options)
 
 
-def _hand_off() -> None:
-    """This thread is about to hand a newly traced program to XLA (or to wait for a
-    prefetch): the prefetches waiting for that moment may start."""
-    while _waiting:
-        _waiting.pop().set()
-
-
-def _worker(jobs: queue.SimpleQueue) -> None:
-    while True:
-        job, future = jobs.get()
-        if future.set_running_or_notify_cancel():
-            try:
-                future.set_result(job())
-            except BaseException as exc:  # noqa: BLE001 - the caller falls back
-                future.set_exception(exc)
-
-
-@contextlib.contextmanager
-def foreground_compile():
-    """Mark an XLA compilation outside the prefetch thread: prefetches wait with theirs
-    until it ends (`compile_in_background`). `cached_jit` marks its own; use it around an
-    explicit `.compile()` whose result the caller waits for."""
-    global _foreground_compiles
-    if threading.current_thread().name == _WORKER:
-        yield
-        return
-    with _foreground:
-        _foreground_compiles += 1
-    try:
-        yield
-    finally:
-        with _foreground:
-            _foreground_compiles -= 1
-            _foreground.notify_all()
-
-
-def compile_in_background(lowered):
-    """`lowered.compile()` for a prefetch job, once no compilation marked by
-    `foreground_compile` runs."""
-    with _foreground:
-        _foreground.wait_for(lambda: _foreground_compiles == 0)
-    return lowered.compile()
-
-
-def in_background(job) -> Future:
-    """Run `job()` (typically: build arguments, then `jitted.lower(...).compile()`) on the
-    one prefetch thread, after any job queued before it; the future holds its result. The
-    thread is a daemon: an exit never waits for it."""
-    global _queue
-    if _queue is None:
-        _queue = queue.SimpleQueue()
-        threading.Thread(target=_worker, args=(_queue,), daemon=True,
-                         name=_WORKER).start()
-    future: Future = Future()
-    _queue.put((job, future))
-    return future
-
-
-def settle(future: Future | None) -> None:
-    """Wait for a prefetch (`in_background`, `prefetch_jit`) before the call that uses its
-    program; a failed one is ignored (the call then compiles the program itself)."""
-    if future is not None:
-        try:
-            future.result()
-        except Exception as exc:  # noqa: BLE001 - the call compiles it instead
-            _log.debug("prefetch failed: %r", exc)
-
-
-def prefetch_jit(jitted, *args, **kwargs) -> Future:
-    """Compile the program of `jitted(*args, **kwargs)` (a `jax.jit` or
-    `equinox.filter_jit` function) on the background thread, starting now; the call made
-    later with arguments of the same layout finds it in jit's cache. The caller waits for
-    the returned future before that call (else both would compile it). For a program that
-    the main thread needs only after other work (an integration running, another program
-    compiling): its tracing then runs on the second core."""
-    return in_background(lambda: compile_in_background(jitted.lower(*args, **kwargs)))
-
 
 def cached_jit(fn=None, *, fast_compile: bool = False):
     """`equinox.filter_jit(fn)` whose traced programs are kept across processes (module
@@ -352,7 +272,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
     def obtain_here(prep):
         key, static, treedef, leaves, folder = prep
         if key in _pending:
-            _hand_off()  # the prefetch may still be waiting for this thread
+            _background._hand_off()  # the prefetch may still be waiting for this thread
             try:  # a prefetch of this program: wait for it rather than compile it twice
                 return _pending.pop(key).result()  # compiled by the prefetch
             except Exception as exc:  # noqa: BLE001 - the usual way below
@@ -363,7 +283,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             _log.debug("%s not kept: %r", fn.__qualname__, exc)
             failed.add(key)
             return None
-        _hand_off()
+        _background._hand_off()
         try:
             with foreground_compile():  # here, once (jit's cache: the call finds it)
                 caller.lower(*leaves).compile()
@@ -416,7 +336,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             return False
         start = threading.Event()
         if wait:
-            _waiting.append(start)
+            _background._waiting.append(start)
         else:
             start.set()
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import bsfs_jax
-from bsfs_jax import _programs
+from bsfs_jax import _prefetch, _programs
 
 
 @bsfs_jax.cached_jit
@@ -36,7 +36,7 @@ def cache_dir(tmp_path, monkeypatch):
     monkeypatch.setattr(_programs, "_program_dir", lambda: tmp_path / "programs")
     monkeypatch.setattr(_programs, "_loaded", {})
     monkeypatch.setattr(_programs, "_pending", {})
-    monkeypatch.setattr(_programs, "_waiting", [])
+    monkeypatch.setattr(_prefetch, "_waiting", [])
     return tmp_path
 
 
@@ -113,10 +113,10 @@ def test_prefetch_compiles_once_and_the_call_uses_it(cache_dir):
     x, data = np.linspace(0.0, 1.0, 6), {"w": np.arange(6.0)}
     assert _poly.prefetch(np.zeros(6), {"w": np.zeros(6)}, 4)  # values do not matter
     assert not _poly.prefetch(np.ones(6), {"w": np.ones(6)}, 4)  # pending already
-    (start,) = _programs._waiting
+    (start,) = _prefetch._waiting
     assert not start.is_set()  # waits for this thread's next hand-off to XLA
     _poly(np.ones(2), {"w": np.ones(2)}, 1)  # another program: the hand-off
-    assert start.is_set() and _programs._waiting == []
+    assert start.is_set() and _prefetch._waiting == []
     _programs._pending[next(iter(_programs._pending))].result(timeout=120)
     seen = _compiles()
     got = _poly(x, data, 4)
@@ -207,9 +207,43 @@ def test_prefetch_compiles_only_after_a_foreground_compilation():
             started.set()
             return f.lower(jnp.ones(3)).compile()
 
-    with _programs.foreground_compile():
-        fut = _programs.in_background(lambda: _programs.compile_in_background(Lowered()))
+    with _prefetch.foreground_compile():
+        fut = _prefetch.in_background(lambda: _prefetch.compile_in_background(Lowered()))
         assert not started.wait(0.5)  # held while the foreground compiles
         assert not fut.done()
     assert started.wait(30.0)
     fut.result(timeout=60.0)
+
+
+def test_next_prefetch_is_traced_while_the_one_before_compiles():
+    """The prefetch thread hands each compilation on and runs the next job meanwhile; a
+    job's future is set only once its compilation has ended, with its error if it
+    failed."""
+    import threading
+
+    release, compiling = threading.Event(), threading.Event()
+
+    class Slow:  # a compilation that lasts until the test releases it
+        def compile(self):
+            compiling.set()
+            assert release.wait(60.0)
+            return "compiled"
+
+    class Broken:
+        def compile(self):
+            raise RuntimeError("XLA failed")
+
+    first = _prefetch.in_background(lambda: (_prefetch.compile_in_background(Slow()), 1)[1])
+    second_ran = threading.Event()
+    second = _prefetch.in_background(lambda: second_ran.set() or 2)
+    third = _prefetch.in_background(lambda: _prefetch.compile_in_background(Broken()))
+    assert compiling.wait(30.0)
+    assert second_ran.wait(30.0)  # traced while the first one's compilation runs
+    assert second.result(timeout=30.0) == 2
+    assert not first.done()  # its compilation has not ended
+    release.set()
+    assert first.result(timeout=30.0) == 1
+    with pytest.raises(RuntimeError, match="XLA failed"):
+        third.result(timeout=30.0)
+    # outside the prefetch thread it compiles at once and returns the executable
+    assert _prefetch.compile_in_background(Slow()) == "compiled"
