@@ -23,7 +23,7 @@ argument without a stable text, an output that is not built of tuples, lists and
 arrays, an export error), the call is plain `filter_jit`, so results never depend on it.
 A stale or unreadable file is exported again and replaced (written atomically).
 
-Prefetches (`cached_jit`'s `prefetch`) run on the background threads of `_prefetch`.
+Prefetches (`cached_jit`'s `prefetch`) run on the background thread of `_prefetch`.
 
 `cached_jit(fn, fast_compile=True)` compiles the kept program with XLA's backend (LLVM)
 optimisation at level 1 instead of 2: for a large program that runs for a fraction of a

@@ -52,8 +52,7 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
 
     from bsfs_jax.design import follow_point, follow_start_and_gradient
 
-    def one(point):
-        hint, weight = point
+    def one(hint, weight):
         start, gradient = follow_start_and_gradient(coords.at, theta, force, hint, weight)
 
         def lane(th):
@@ -62,12 +61,7 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
 
         return jax.vmap(lane)(thetas), gradient
 
-    # The points one after the other (`lax.map`), each with its draws as vmapped lanes:
-    # a vmap over the points too batched every nested loop (Newton, the ODE's steps) a
-    # second time. On the bundled worn drive (3 points x 216 lanes) that took the tracing
-    # 13.6 -> 6.3 s and the run 21.9 -> 16.5 s (each point's lanes stop with their own
-    # slowest), the compilation unchanged (21 s), on a slow 2-core machine.
-    return jax.lax.map(one, (hints, weights))
+    return jax.vmap(one)(hints, weights)
 
 
 def central_steps(ident: Identified) -> np.ndarray:
@@ -165,4 +159,3 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
                                                     first(), skip))
     exact = {name: (lambda k=k, c=c: batch()[k, :, c]) for name, (k, c) in where.items()}
     return exact, gradients
-

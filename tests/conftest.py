@@ -22,6 +22,30 @@ if os.environ.get("BSFS_CACHE_DIR"):  # CI: share compiled programs across test 
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+# `tests/run_each.py` names a file per test process (BSFS_TEST_COMPILE_STATS): the seconds
+# jax spent tracing, lowering and compiling (its compile events; XLA's seconds include the
+# persistent cache's reads, and "programs" the executables read from it, "cache_hits"),
+# written at the session's end, so that the record shows where the suite's time goes
+# (issue 19).
+_COMPILE = {"programs": 0, "compile_s": 0.0, "trace_s": 0.0, "lower_s": 0.0,
+            "cache_hits": 0}
+_EVENTS = {"/jax/core/compile/backend_compile_duration": "compile_s",
+           "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+           "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s"}
+
+
+def _on_compile_event(event, seconds, **kwargs):
+    name = _EVENTS.get(event)
+    if name is not None:
+        _COMPILE[name] += seconds
+        _COMPILE["programs"] += name == "compile_s"  # compiled, or read from the cache
+    elif event == "/jax/compilation_cache/cache_retrieval_time_sec":
+        _COMPILE["cache_hits"] += 1
+
+
+if os.environ.get("BSFS_TEST_COMPILE_STATS"):
+    jax.monitoring.register_event_duration_secs_listener(_on_compile_event)
+
 
 # A test process started by `tests/run_each.py` (BSFS_TEST_FAST_EXIT=1) ends at once after
 # pytest has reported and finished its session, with pytest's exit status: the
@@ -32,6 +56,12 @@ _SESSION = {}
 
 def pytest_sessionfinish(session, exitstatus):
     _SESSION["status"] = int(exitstatus)
+    path = os.environ.get("BSFS_TEST_COMPILE_STATS")
+    if path:
+        import json
+
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump({k: round(v, 2) for k, v in _COMPILE.items()}, fh)
 
 
 @pytest.hookimpl(trylast=True)

@@ -7,8 +7,10 @@ runs its tests file by file for the same reason. Files run `BSFS_TEST_JOBS` at a
 is kept busy (most of the suite's time is single-threaded XLA compilation). Each file's
 output is printed whole when it ends. Arguments are passed on to pytest.
 
-The run is recorded in `tests/last_run.json` (per file: the counts of pytest's summary line
-and the seconds; totals, date, machine, pytest arguments); `scripts/status.py` fills the
+The run is recorded in `tests/last_run.json` (per file: the counts of pytest's summary line,
+the seconds, and jax's own seconds of tracing, lowering and XLA compilation with the
+executables obtained and those read from the persistent cache (conftest.py); totals, date, machine,
+pytest arguments); `scripts/status.py` fills the
 README's status table from it. `BSFS_TEST_RECORD` names another file for the record, or
 turns it off when empty.
 Exit status: 0 when every file passed, else 1 (the failing files are listed).
@@ -66,10 +68,26 @@ def _deselects_slow(args) -> bool:
 
 
 def _run(path, extra, env):
+    """(path, exit code, output, seconds, compile stats or {}): one file's pytest process;
+    the stats are conftest.py's (BSFS_TEST_COMPILE_STATS): seconds of jax's tracing,
+    lowering and XLA compilation (or persistent-cache reads), executables obtained, of
+    them read from the persistent cache."""
+    import tempfile
+
+    fd, stats_path = tempfile.mkstemp(prefix="bsfs-compile-", suffix=".json")
+    os.close(fd)
+    env = dict(env, BSFS_TEST_COMPILE_STATS=stats_path)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", str(path), *extra], env=env,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    return path, proc.returncode, proc.stdout, time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
+    try:
+        stats = json.loads(Path(stats_path).read_text() or "{}")
+    except (OSError, ValueError):
+        stats = {}
+    finally:
+        Path(stats_path).unlink(missing_ok=True)
+    return path, proc.returncode, proc.stdout, seconds, stats
 
 
 def _machine() -> dict:
@@ -121,7 +139,8 @@ def main(argv=None, files=None) -> int:
     failed, rows = [], []
     start = time.perf_counter()
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for path, code, output, seconds in pool.map(lambda p: _run(p, extra, env), files):
+        for path, code, output, seconds, stats in pool.map(lambda p: _run(p, extra, env),
+                                                           files):
             print(output, end="", flush=True)
             ok = code in (0, 5)  # 5: no tests collected (e.g. all deselected)
             print(f"== {path.name}: {'ok' if ok else 'FAILED'} ({seconds:.0f} s)", flush=True)
@@ -130,18 +149,24 @@ def main(argv=None, files=None) -> int:
             counts = parse_summary(output)
             rows.append({"file": path.name, "status": "ok" if ok else "FAILED",
                          "exit_code": code, "seconds": round(seconds, 1),
-                         **(counts or {"summary_line_found": False})})
+                         **(counts or {"summary_line_found": False}),
+                         **({"jax": stats} if stats else {})})
     total = time.perf_counter() - start
     record_path = os.environ.get("BSFS_TEST_RECORD", str(RECORD))
     if record_path:
         keys = ("passed", "failed", "errors", "skipped", "xfailed", "xpassed", "deselected")
         totals = {k: sum(r.get(k, 0) for r in rows) for k in keys}
+        jax_keys = ("programs", "compile_s", "trace_s", "lower_s", "cache_hits")
+        jax_totals = {k: round(sum(r.get("jax", {}).get(k, 0) for r in rows), 1)
+                      for k in jax_keys}
         write_record(Path(record_path), {
             "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
             "pytest_args": extra, "slow_tests": not _deselects_slow(extra),
             "load_average_at_start": load_start, "machine": _machine(),
             "files": len(rows), "failed_files": failed,
             "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},
+            # summed over the files' processes (two at a time): CPU seconds, not wall
+            "jax_totals": jax_totals,
             "per_file": sorted(rows, key=lambda r: r["file"])})
         print(f"recorded in {record_path} (`make status` puts it in README's status table)")
     if failed:

@@ -214,36 +214,3 @@ def test_prefetch_compiles_only_after_a_foreground_compilation():
     assert started.wait(30.0)
     fut.result(timeout=60.0)
 
-
-def test_next_prefetch_is_traced_while_the_one_before_compiles():
-    """The prefetch thread hands each compilation on and runs the next job meanwhile; a
-    job's future is set only once its compilation has ended, with its error if it
-    failed."""
-    import threading
-
-    release, compiling = threading.Event(), threading.Event()
-
-    class Slow:  # a compilation that lasts until the test releases it
-        def compile(self):
-            compiling.set()
-            assert release.wait(60.0)
-            return "compiled"
-
-    class Broken:
-        def compile(self):
-            raise RuntimeError("XLA failed")
-
-    first = _prefetch.in_background(lambda: (_prefetch.compile_in_background(Slow()), 1)[1])
-    second_ran = threading.Event()
-    second = _prefetch.in_background(lambda: second_ran.set() or 2)
-    third = _prefetch.in_background(lambda: _prefetch.compile_in_background(Broken()))
-    assert compiling.wait(30.0)
-    assert second_ran.wait(30.0)  # traced while the first one's compilation runs
-    assert second.result(timeout=30.0) == 2
-    assert not first.done()  # its compilation has not ended
-    release.set()
-    assert first.result(timeout=30.0) == 1
-    with pytest.raises(RuntimeError, match="XLA failed"):
-        third.result(timeout=30.0)
-    # outside the prefetch thread it compiles at once and returns the executable
-    assert _prefetch.compile_in_background(Slow()) == "compiled"
