@@ -629,6 +629,19 @@ def _tests(src: Sources, v: Values):
 
     put("longest", longest)
 
+    def jax_time():
+        raw = d.raw()
+        j = raw.get("jax_totals")
+        if not j:
+            return "not recorded in that run"
+        file_s = sum(r.get("seconds", 0) for r in raw["per_file"])
+        return (f"XLA compilation {sig(j['compile_s'], 3)} s for {integer(j['programs'])} "
+                f"executables ({integer(j['cache_hits'])} of them read from the persistent "
+                f"cache), tracing {sig(j['trace_s'], 3)} s, lowering {sig(j['lower_s'], 3)} s, "
+                f"of {sig(file_s, 4)} file-seconds")
+
+    put("jax", jax_time)
+
 
 def _gpu(src: Sources, v: Values, targets: dict):
     f = "benchmarks/results/gpu_b1.json"
