@@ -642,6 +642,17 @@ def _tests(src: Sources, v: Values):
 
     put("jax", jax_time)
 
+    def costliest():
+        progs = d.raw().get("jax_costliest_programs")
+        if not progs:
+            return "not recorded in that run"
+        rows = sorted(progs.items(), key=lambda kv: -(kv[1]["compile_s"] + kv[1]["trace_s"]))
+        return "; ".join(
+            f"`{name}` {sig(p['compile_s'], 3)} s compiling and {sig(p['trace_s'], 3)} s "
+            f"tracing in {integer(p['files'])} file(s)" for name, p in rows[:5])
+
+    put("costliest", costliest)
+
 
 def _gpu(src: Sources, v: Values, targets: dict):
     f = "benchmarks/results/gpu_b1.json"

@@ -34,11 +34,21 @@ _EVENTS = {"/jax/core/compile/backend_compile_duration": "compile_s",
            "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s"}
 
 
+_BY_PROGRAM: dict = {}  # function name -> [XLA s, tracing s, executables]
+_TOP_PROGRAMS = 12  # per file, by XLA + tracing seconds
+
+
 def _on_compile_event(event, seconds, **kwargs):
     name = _EVENTS.get(event)
     if name is not None:
         _COMPILE[name] += seconds
         _COMPILE["programs"] += name == "compile_s"  # compiled, or read from the cache
+        if name != "lower_s":
+            fun = str(kwargs.get("fun_name", "?"))  # XLA's events say "jit(name)"
+            fun = fun[4:-1] if fun.startswith("jit(") and fun.endswith(")") else fun
+            row = _BY_PROGRAM.setdefault(fun, [0.0, 0.0, 0])
+            row[0 if name == "compile_s" else 1] += seconds
+            row[2] += name == "compile_s"
     elif event == "/jax/compilation_cache/cache_retrieval_time_sec":
         _COMPILE["cache_hits"] += 1
 
@@ -60,8 +70,11 @@ def pytest_sessionfinish(session, exitstatus):
     if path:
         import json
 
+        top = sorted(_BY_PROGRAM.items(), key=lambda kv: -(kv[1][0] + kv[1][1]))
         with open(path, "w", encoding="utf-8") as fh:
-            json.dump({k: round(v, 2) for k, v in _COMPILE.items()}, fh)
+            json.dump(dict({k: round(v, 2) for k, v in _COMPILE.items()}, top_programs={
+                name: {"compile_s": round(c, 2), "trace_s": round(t, 2), "executables": n}
+                for name, (c, t, n) in top[:_TOP_PROGRAMS]}), fh)
 
 
 @pytest.hookimpl(trylast=True)

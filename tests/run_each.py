@@ -9,10 +9,10 @@ output is printed whole when it ends. Arguments are passed on to pytest.
 
 The run is recorded in `tests/last_run.json` (per file: the counts of pytest's summary line,
 the seconds, and jax's own seconds of tracing, lowering and XLA compilation with the
-executables obtained and those read from the persistent cache (conftest.py); totals, date, machine,
-pytest arguments); `scripts/status.py` fills the
-README's status table from it. `BSFS_TEST_RECORD` names another file for the record, or
-turns it off when empty.
+executables obtained and those read from the persistent cache, and its 12 costliest
+programs by name (conftest.py); the 20 costliest programs over the files; totals, date,
+machine, pytest arguments); `scripts/status.py` fills the README's status table from it.
+`BSFS_TEST_RECORD` names another file for the record, or turns it off when empty.
 Exit status: 0 when every file passed, else 1 (the failing files are listed).
 """
 
@@ -159,6 +159,18 @@ def main(argv=None, files=None) -> int:
         jax_keys = ("programs", "compile_s", "trace_s", "lower_s", "cache_hits")
         jax_totals = {k: round(sum(r.get("jax", {}).get(k, 0) for r in rows), 1)
                       for k in jax_keys}
+        programs = {}  # each file's costliest programs, summed by name over the files
+        for r in rows:
+            for name, p in r.get("jax", {}).get("top_programs", {}).items():
+                acc = programs.setdefault(name, {"compile_s": 0.0, "trace_s": 0.0,
+                                                 "executables": 0, "files": 0})
+                for k in ("compile_s", "trace_s", "executables"):
+                    acc[k] += p.get(k, 0)
+                acc["files"] += 1
+        costliest = dict(sorted(programs.items(),
+                                key=lambda kv: -(kv[1]["compile_s"] + kv[1]["trace_s"]))[:20])
+        costliest = {name: {k: round(v, 1) for k, v in acc.items()}
+                     for name, acc in costliest.items()}
         write_record(Path(record_path), {
             "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
             "pytest_args": extra, "slow_tests": not _deselects_slow(extra),
@@ -167,6 +179,8 @@ def main(argv=None, files=None) -> int:
             "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},
             # summed over the files' processes (two at a time): CPU seconds, not wall
             "jax_totals": jax_totals,
+            # the programs costliest to trace and compile, over each file's 12 costliest
+            "jax_costliest_programs": costliest,
             "per_file": sorted(rows, key=lambda r: r["file"])})
         print(f"recorded in {record_path} (`make status` puts it in README's status table)")
     if failed:
