@@ -33,11 +33,17 @@ _foreground = threading.Condition()
 _foreground_compiles = 0
 
 
-def _hand_off() -> None:
+def hand_off() -> None:
     """This thread is about to hand a newly traced program to XLA (or to wait for a
     prefetch): the prefetches waiting for that moment may start."""
     while _waiting:
         _waiting.pop().set()
+
+
+def start_at_next_hand_off(start: threading.Event) -> None:
+    """Set `start` at this process's next `hand_off` (a prefetch's tracing then runs
+    beside that compilation, not in front of it)."""
+    _waiting.append(start)
 
 
 def _worker(jobs: queue.SimpleQueue) -> None:

@@ -53,14 +53,15 @@ import jax
 import numpy as np
 from jax import export
 
-from . import _prefetch as _background
 from ._files import write_bytes_atomic
 from ._prefetch import (  # noqa: F401 - re-exported: the prefetch API lives here too
     compile_in_background,
     foreground_compile,
+    hand_off,
     in_background,
     prefetch_jit,
     settle,
+    start_at_next_hand_off,
 )
 
 _DISABLED = os.environ.get("BSFS_PROGRAM_CACHE", "1") == "0"
@@ -272,7 +273,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
     def obtain_here(prep):
         key, static, treedef, leaves, folder = prep
         if key in _pending:
-            _background._hand_off()  # the prefetch may still be waiting for this thread
+            hand_off()  # the prefetch may still be waiting for this thread
             try:  # a prefetch of this program: wait for it rather than compile it twice
                 return _pending.pop(key).result()  # compiled by the prefetch
             except Exception as exc:  # noqa: BLE001 - the usual way below
@@ -283,7 +284,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             _log.debug("%s not kept: %r", fn.__qualname__, exc)
             failed.add(key)
             return None
-        _background._hand_off()
+        hand_off()
         try:
             with foreground_compile():  # here, once (jit's cache: the call finds it)
                 caller.lower(*leaves).compile()
@@ -336,7 +337,7 @@ def cached_jit(fn=None, *, fast_compile: bool = False):
             return False
         start = threading.Event()
         if wait:
-            _background._waiting.append(start)
+            start_at_next_hand_off(start)
         else:
             start.set()
 

@@ -32,8 +32,6 @@ _COMPILE = {"programs": 0, "compile_s": 0.0, "trace_s": 0.0, "lower_s": 0.0,
 _EVENTS = {"/jax/core/compile/backend_compile_duration": "compile_s",
            "/jax/core/compile/jaxpr_trace_duration": "trace_s",
            "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s"}
-
-
 _BY_PROGRAM: dict = {}  # function name -> [XLA s, tracing s, executables]
 _TOP_PROGRAMS = 12  # per file, by XLA + tracing seconds
 

@@ -24,6 +24,7 @@ import platform
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -72,8 +73,6 @@ def _run(path, extra, env):
     the stats are conftest.py's (BSFS_TEST_COMPILE_STATS): seconds of jax's tracing,
     lowering and XLA compilation (or persistent-cache reads), executables obtained, of
     them read from the persistent cache."""
-    import tempfile
-
     fd, stats_path = tempfile.mkstemp(prefix="bsfs-compile-", suffix=".json")
     os.close(fd)
     env = dict(env, BSFS_TEST_COMPILE_STATS=stats_path)
@@ -88,6 +87,26 @@ def _run(path, extra, env):
     finally:
         Path(stats_path).unlink(missing_ok=True)
     return path, proc.returncode, proc.stdout, seconds, stats
+
+
+def _jax_summary(rows) -> dict:
+    """The files' jax seconds summed (`jax_totals`: over processes that ran two at a time,
+    so CPU seconds, not wall) and the 20 programs costliest to trace and compile over the
+    files' 12 costliest each (`jax_costliest_programs`, with the files they appear in)."""
+    keys = ("programs", "compile_s", "trace_s", "lower_s", "cache_hits")
+    totals = {k: round(sum(r.get("jax", {}).get(k, 0) for r in rows), 1) for k in keys}
+    programs = {}
+    for r in rows:
+        for name, p in r.get("jax", {}).get("top_programs", {}).items():
+            acc = programs.setdefault(name, {"compile_s": 0.0, "trace_s": 0.0,
+                                             "executables": 0, "files": 0})
+            for k in ("compile_s", "trace_s", "executables"):
+                acc[k] += p.get(k, 0)
+            acc["files"] += 1
+    costliest = sorted(programs.items(), key=lambda kv: -(kv[1]["compile_s"] + kv[1]["trace_s"]))
+    return {"jax_totals": totals,
+            "jax_costliest_programs": {name: {k: round(v, 1) for k, v in acc.items()}
+                                       for name, acc in costliest[:20]}}
 
 
 def _machine() -> dict:
@@ -156,21 +175,6 @@ def main(argv=None, files=None) -> int:
     if record_path:
         keys = ("passed", "failed", "errors", "skipped", "xfailed", "xpassed", "deselected")
         totals = {k: sum(r.get(k, 0) for r in rows) for k in keys}
-        jax_keys = ("programs", "compile_s", "trace_s", "lower_s", "cache_hits")
-        jax_totals = {k: round(sum(r.get("jax", {}).get(k, 0) for r in rows), 1)
-                      for k in jax_keys}
-        programs = {}  # each file's costliest programs, summed by name over the files
-        for r in rows:
-            for name, p in r.get("jax", {}).get("top_programs", {}).items():
-                acc = programs.setdefault(name, {"compile_s": 0.0, "trace_s": 0.0,
-                                                 "executables": 0, "files": 0})
-                for k in ("compile_s", "trace_s", "executables"):
-                    acc[k] += p.get(k, 0)
-                acc["files"] += 1
-        costliest = dict(sorted(programs.items(),
-                                key=lambda kv: -(kv[1]["compile_s"] + kv[1]["trace_s"]))[:20])
-        costliest = {name: {k: round(v, 1) for k, v in acc.items()}
-                     for name, acc in costliest.items()}
         write_record(Path(record_path), {
             "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
             "pytest_args": extra, "slow_tests": not _deselects_slow(extra),
@@ -178,9 +182,7 @@ def main(argv=None, files=None) -> int:
             "files": len(rows), "failed_files": failed,
             "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},
             # summed over the files' processes (two at a time): CPU seconds, not wall
-            "jax_totals": jax_totals,
-            # the programs costliest to trace and compile, over each file's 12 costliest
-            "jax_costliest_programs": costliest,
+            **_jax_summary(rows),
             "per_file": sorted(rows, key=lambda r: r["file"])})
         print(f"recorded in {record_path} (`make status` puts it in README's status table)")
     if failed:
