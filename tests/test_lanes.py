@@ -306,11 +306,15 @@ _DUFFING_CFG = dict(transient_periods=60, periods=8, samples_per_period=16, lyap
 
 def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(duffing_problem):
     """`check_orbits_lanes` (every integration on the per-lane kernel: the variational
-    equations as d + d^2 components, chord iterations, samples) against `check_orbits`
-    (vmapped fused loops) from the same sampled states, n = 1 and 2: the same orbits,
-    iterations and multipliers to the checks' accuracy (~1e-6)."""
+    equations one column of the monodromy matrix per lane, chord iterations, samples)
+    against `check_orbits` (vmapped fused loops) from the same sampled states, n = 1 and
+    2: the same orbits, iterations and multipliers to the checks' accuracy (~1e-6), and a
+    monodromy matrix no further from one integrated at rtol 1e-12 than the vmapped
+    checks' (at the checks' own tolerances the columns' lanes were 2.4x further)."""
+    import dataclasses
+
     from bsfs_jax.analysis._orbit_trials import scale_of
-    from bsfs_jax.solvers import check_orbits, check_orbits_lanes
+    from bsfs_jax.solvers import CHECK_SETTINGS, check_orbits, check_orbits_lanes
 
     p = duffing_problem
     res = sweep(p, _GAMMAS, config=SweepConfig(
@@ -338,6 +342,12 @@ def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(duffing_problem):
         x, z = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
         np.testing.assert_array_equal(np.isnan(z), np.isnan(x))
         assert np.nanmax(np.abs(z - x)) < 1e-6 * amp.max(), f
+    tight = dataclasses.replace(CHECK_SETTINGS, rtol=1e-12, atol=1e-14)
+    ref = np.asarray(check_orbits(p.vector_field, p.setup, p.data, _GAMMAS, y, scale, n,
+                                  settings=tight, **kw).monodromy)
+    err = {k: np.abs(np.asarray(c.monodromy) - ref).max() for k, c in (("vmap", a),
+                                                                       ("lanes", b))}
+    assert err["lanes"] <= err["vmap"], err
 
 
 def test_verifier_runs_its_checks_on_the_kernel_where_asked(duffing_problem, monkeypatch):

@@ -96,8 +96,10 @@ class VerifySettings:
       as arguments (`settle=`, `kernel=`) and otherwise run neither.
     - `kernel_checks`: run the orbit checks on the per-lane kernel
       (`solvers.check_orbits_lanes`) with the sweep's kernel settings; None: where the
-      sweep's engine is the kernel. Off by default until its Triton build (42 components
-      a lane) is measured on a GPU (`benchmarks/bench_gpu.py --kernel-checks 1`).
+      sweep's engine is the kernel. Off by default until measured on a GPU: the build
+      of its first form (the whole monodromy matrix on a lane, 42 components) had not
+      finished after 260 s on an H200; the monodromy now takes one column a lane (12
+      components), not yet built on a GPU (`benchmarks/bench_gpu.py --kernel-checks 1`).
     - `run_settings`: ODE settings of the continuation blocks (as a sweep's).
     """
 

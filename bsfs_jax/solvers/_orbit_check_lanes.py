@@ -6,9 +6,14 @@ launches, and a call costs the slowest point's steps times a launch-bound step (
 3.5 s for 2048 lanes on an H100). Here the same method runs with every integration on the
 kernel, in which each point's loop is its own:
 
-- the variational equations from the sampled state: the state and the monodromy matrix
-  as d + d^2 components of one lane (the field's forward derivatives along the matrix's
-  columns, elementwise like the field itself), in the same scaled variables;
+- the variational equations from the sampled state, one column of the monodromy matrix
+  per lane: lane (i, j) carries point i's state and the matrix's column j, 2 d components
+  (the field and its forward derivative along the column, elementwise like the field
+  itself), in the same scaled variables. One lane of d + d^2 components (42 for the ball
+  screw) held the whole matrix before; on an H200 XLA had not finished building that
+  kernel after 260 s (benchmarks/results/gpu_b1.md, 2026-11-29), while a lane of 12
+  components is twice the sweep's own (which compiles in seconds). Each column's lane
+  controls its own error and steps, as the whole matrix's lane did;
 - chord iterations with that Newton matrix, one kernel call per iteration for every point
   (a point that has converged keeps its state: the iterations of each point are those of
   `check_orbits`);
@@ -20,6 +25,7 @@ well inside the checks' Newton tolerance. The field is the problem's `component_
 (`SweepProblem`). Nothing is differentiated through it.
 """
 
+import dataclasses
 import functools
 
 import jax
@@ -36,30 +42,52 @@ _TAIL = 1e-6
 
 
 def _scaled(field):
-    """z' = f(t, z * scale) / scale on components; args = (the field's args, scale)."""
+    """z' = f(t, z * scale) / scale on components; args = (the field's args, scale, 1 /
+    scale): the quotient as a product by the reciprocal computed once, outside the
+    kernel (a float64 division is a slow software sequence on a GPU)."""
     def g(t, zs, args):
-        inner, scale = args
+        inner, scale, inv = args
         ys = tuple(z * s for z, s in zip(zs, scale, strict=True))
-        return tuple(v / s for v, s in zip(field(t, ys, inner), scale, strict=True))
+        return tuple(v * r for v, r in zip(field(t, ys, inner), inv, strict=True))
 
     return g
 
 
-def _variational(field, d: int):
-    """(z, Phi) with Phi row-major after z: z' = g(z), Phi' = Dg(z) Phi, on components."""
+def _tangent(field, d: int):
+    """(z, v): z' = g(z), v' = Dg(z) v, on components (one column of the monodromy)."""
     def g(t, ws, args):
-        z = tuple(ws[:d])
-
-        def at(*zs):
-            return field(t, zs, args)
-
-        cols = []
-        for j in range(d):
-            out, tangent = jax.jvp(at, z, tuple(ws[d + i * d + j] for i in range(d)))
-            cols.append(tangent)
-        return tuple(out) + tuple(cols[j][i] for i in range(d) for j in range(d))
+        out, tangent = jax.jvp(lambda *zs: field(t, zs, args), tuple(ws[:d]),
+                               tuple(ws[d:]))
+        return tuple(out) + tuple(tangent)
 
     return g
+
+
+#: The columns' lanes run at tolerances this many times tighter than the checks': a
+#: column's error control sees the state and that column only, not the whole matrix,
+#: and at the checks' own tolerances its monodromy came out 3x further from a reference
+#: at rtol 1e-12 than the vmapped checks' (BSFS at 300-3800 Hz, 5000 N: multipliers
+#: within 2.7e-6 against 1.1e-6); at a quarter of them 4.4e-7 against 1.1e-6, for
+#: about 4^(1/5) = 1.3 times the steps (fifth order) in this one of the checks' runs.
+_COLUMN_TIGHTER = 4.0
+
+
+def _tighter(settings):
+    return dataclasses.replace(settings, rtol=settings.rtol / _COLUMN_TIGHTER,
+                               atol=settings.atol / _COLUMN_TIGHTER)
+
+
+def _monodromy(g, z0, sargs, t_end, period, settings, fast, block):
+    """(Phi^{T_end}(z0), the monodromy matrix (B, d, d), ok (B,)): point i's column j on
+    lane i d + j (`_tangent`), the state taken from its column 0's lane."""
+    B, d = z0.shape
+    rep = lambda a: jnp.repeat(a, d, axis=0)  # noqa: E731 - lane i d + j: point i
+    w0 = jnp.concatenate([rep(z0), jnp.tile(jnp.eye(d), (B, 1))], axis=1)
+    w, codes = _run_to(_tangent(g, d), w0, jax.tree_util.tree_map(rep, sargs), rep(t_end),
+                       rep(period), _tighter(settings), fast, block)
+    w = w.reshape(B, d, 2 * d)
+    ok = jnp.all(codes.reshape(B, d) == _OK, axis=1)
+    return w[:, 0, :d], jnp.swapaxes(w[:, :, d:], 1, 2), ok
 
 
 def _run_to(field, y, args, t_end, period, settings, fast, block):
@@ -82,14 +110,12 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     t_end = nf * period
     eye = jnp.eye(d)
     eyes = jnp.broadcast_to(eye, (B, d, d))
-    sargs = (args, scale)
+    sargs = (args, scale, 1.0 / scale)
     g = _scaled(field)
     z0 = y_guess / scale
-    w0 = jnp.concatenate([z0, jnp.broadcast_to(eye.reshape(-1), (B, d * d))], axis=1)
-    w, codes = _run_to(_variational(g, d), w0, sargs, t_end, period, settings, fast, block)
-    ok0 = codes == _OK
-    f0 = jnp.where(ok0[:, None], w[:, :d] - z0, jnp.nan)
-    j0 = w[:, d:].reshape(B, d, d) - eyes
+    z_end, phi, ok0 = _monodromy(g, z0, sargs, t_end, period, settings, fast, block)
+    f0 = jnp.where(ok0[:, None], z_end - z0, jnp.nan)
+    j0 = phi - eyes
     j0 = jnp.where(ok0[:, None, None], j0, jnp.nan)
     ok0 = ok0 & jnp.all(jnp.isfinite(f0), axis=1) & jnp.all(jnp.isfinite(j0), axis=(1, 2))
     lu = jax.vmap(jax.scipy.linalg.lu_factor)(jnp.where(ok0[:, None, None], j0, eyes))
