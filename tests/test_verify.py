@@ -241,10 +241,11 @@ def test_prefetched_orbit_checks_compile_once_and_agree():
 
 def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
     """A wide verification (an accelerator's: one lockstep batch per chunk, padded to a
-    power of two, n = 1 and the candidate periods in one call, and the continuation blocks
-    padded alike) gives the verdicts of narrow batches: the padding lanes repeat a point
-    and are dropped. The Duffing route, whose
-    chaotic point runs the continuation blocks (3 pending points padded to 4 lanes)."""
+    power of two, and the continuation blocks padded alike) gives the verdicts of narrow
+    batches: the padding lanes repeat a point and are dropped. A lockstep call lasts as
+    long as its longest lane, so n = 1 never shares a call with a longer candidate period
+    (with no extra periods given). The Duffing route, whose chaotic point runs the
+    continuation blocks (3 pending points padded to 4 lanes)."""
     from bsfs_jax.analysis import _extend
 
     problem = SweepProblem(duffing, _gamma_setup, jnp.array([0.3, -1.0, 1.0, 1.2]),
@@ -264,8 +265,8 @@ def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
 
     calls = []
     check = _orbit_trials.check_orbits
-    monkeypatch.setattr(_orbit_trials, "check_orbits",
-                        lambda *a, **k: calls.append(len(a[3])) or check(*a, **k))
+    monkeypatch.setattr(_orbit_trials, "check_orbits", lambda *a, **k: calls.append(
+        (len(a[3]), set(np.asarray(a[6]).tolist()))) or check(*a, **k))
     narrow = verify_sweep(problem, res, settings=VerifySettings(batch=2, wide=False))
     n_narrow, checks_narrow = len(widths), len(calls)
     wide_settings = VerifySettings(batch=2, wide=True)
@@ -273,8 +274,11 @@ def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
     assert VerifySettings(batch=2, wide=False).lanes_for(5) == 2
     wide = verify_sweep(problem, res, settings=wide_settings)
     assert n_narrow >= 1 and set(widths[n_narrow:]) == {4}  # blocks padded to the lanes
-    # One lockstep width, and n = 1 with the candidate periods in one call: fewer calls.
-    assert set(calls[checks_narrow:]) == {4} and len(calls) - checks_narrow < checks_narrow
+    # One lockstep width; n = 1 in calls of its own (the candidates 2 and 4 apart).
+    wide_calls = calls[checks_narrow:]
+    assert {w for w, _ in wide_calls} == {4}
+    assert all(ns == {1} or 1 not in ns for _, ns in wide_calls), wide_calls
+    assert any(ns == {1} for _, ns in wide_calls) and any(1 not in ns for _, ns in wide_calls)
     assert list(wide["motion"][0]) == list(narrow["motion"][0]) == \
         ["period-1", "period-2", "period-4", "chaotic"]
     for f in ("max_multiplier", "orbit_residual", "lyapunov_low", "lyapunov_high",
