@@ -2,7 +2,10 @@
 # Issue 21's verified cases on a lent GPU (the `device` tool), one call:
 #   1. a verified B1 sweep of 2048 points (kernel engine, wide verification, settle
 #      blocks), first call and second call, with the verification's phases (bench_gpu.py
-#      case 5): the orbit checks on the kernel, then vmapped;
+#      case 5): the orbit checks vmapped, then on the kernel (compile events to
+#      $OUT/compiles_kernel_checks_1.txt: on 2026-11-29 the former 42-component lane's
+#      program had not compiled after 260 s; the GPU's utilisation every 5 s to
+#      $OUT/util.txt);
 #   2. `bsfs map` over 256 x 256 points (frequency 100-4000 Hz x force 1000-8000 N,
 #      verified, no row continuations), cold, in a fresh process.
 # Usage (device): bash benchmarks/gpu_verified.sh [VERIFY_TIMEOUT_S] [ATLAS_TIMEOUT_S] [N]
@@ -18,10 +21,15 @@ python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /
 export PYTHONPATH=/tmp/site:$PWD
 nvidia-smi --query-gpu=name,clocks.max.sm,driver_version --format=csv,noheader
 N=${3:-256}
+nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv,noheader -l 5 \
+  > "$OUT/util.txt" 2>&1 &
 if [ "${1:-150}" != 0 ]; then
-  for kc in 1 0; do  # the orbit checks on the kernel, then vmapped (each a fresh process)
-    timeout "${1:-150}" python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 --points "" \
-      --numba-points "" --vmap-points "" --verify-points 2048 --budget 100 --kernel-checks $kc
+  for kc in 0 1; do  # the orbit checks vmapped, then on the kernel (each a fresh process)
+    JAX_LOG_COMPILES=$kc timeout "${1:-150}" python3 benchmarks/bench_gpu.py --out "$OUT" \
+      --smoke 0 --points "" --numba-points "" --vmap-points "" --verify-points 2048 \
+      --budget 100 --kernel-checks $kc 2> >(grep -E "XLA compilation|Very slow|rror" \
+      | cut -c1-200 > "$OUT/compiles_kernel_checks_$kc.txt")
+    echo "{\"case\": \"verified process\", \"kernel_checks\": $kc, \"rc\": $?}" | tee -a "$OUT/gpu.jsonl"
   done
 fi
 t0=$(date +%s.%N)
