@@ -266,10 +266,38 @@ def phase_timers():
     wrap(_verify, "run_block", "blocks_s")
     wrap(_orbit_trials.OrbitTrials, "orbits", "orbit_checks_s")
 
+    # Each batch call of the checks (vmapped or on the kernel): its seconds, lanes, and
+    # its lockstep length, the longest lane's n x (chord iterations + 2) periods (what a
+    # vmapped call's time follows on an accelerator; a kernel call's lanes run apart).
+    batches = []
+
+    def wrap_batch(name):
+        fn = getattr(_orbit_trials, name)
+
+        def timed_batch(*a, **k):
+            import jax
+            import numpy as np
+
+            t0 = time.perf_counter()
+            out = jax.block_until_ready(fn(*a, **k))
+            n, steps = np.asarray(a[6]), np.asarray(out.steps)
+            batches.append({"fn": name, "s": round(time.perf_counter() - t0, 3),
+                            "lanes": int(n.size), "n_max": int(n.max()),
+                            "chord_max": int(steps.max()),
+                            "lockstep_periods": int(np.max(n * (steps + 2)))})
+            return out
+
+        setattr(_orbit_trials, name, timed_batch)
+
+    wrap_batch("check_orbits")
+    wrap_batch("check_orbits_lanes")
+
     class Phases:
         def take(self):
             out = {k: {"s": round(v[0], 3), "calls": v[1]} for k, v in acc.items()}
+            out["check_batches"] = list(batches)
             acc.clear()
+            batches.clear()
             return out
 
     return Phases()
