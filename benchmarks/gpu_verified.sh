@@ -7,8 +7,10 @@
 #      program had not compiled after 260 s; the GPU's utilisation every 5 s to
 #      $OUT/util.txt);
 #   2. `bsfs map` over 256 x 256 points (frequency 100-4000 Hz x force 1000-8000 N,
-#      verified, no row continuations), cold, in a fresh process.
+#      verified, no row continuations), cold, in a fresh process; with a fourth argument
+#      `--kernel-checks`, its orbit checks on the kernel.
 # Usage (device): bash benchmarks/gpu_verified.sh [VERIFY_TIMEOUT_S] [ATLAS_TIMEOUT_S] [N]
+#                 [--kernel-checks]
 # (defaults 150 s for each of the two verified runs and 240 s for the map: 540 s in all,
 # inside one device call of at most 600 s; each verified run skips its second call once
 # 100 s are spent)
@@ -35,10 +37,10 @@ fi
 t0=$(date +%s.%N)
 timeout "${2:-240}" python3 -c "import sys; from bsfs_jax.cli import run; sys.argv[0] = 'bsfs'; run()" \
   map --x-start 100 --x-stop 4000 --x-num "$N" --y-start 1000 --y-stop 8000 --y-num "$N" \
-  --no-bifurcations --engine kernel --out /tmp/atlas 2>&1 | tr '\r' '\n' | grep -v '^$' | tail -25
+  --no-bifurcations --engine kernel ${4:-} --out /tmp/atlas 2>&1 | tr '\r' '\n' | grep -v '^$' | tail -25
 rc=${PIPESTATUS[0]}
 t1=$(date +%s.%N)
-echo "{\"case\": \"atlas\", \"grid\": \"${N}x${N}\", \"rc\": $rc, \"wall_s\": $(python3 -c "print(round($t1 - $t0, 2))")}" | tee -a "$OUT/gpu.jsonl"
+echo "{\"case\": \"atlas\", \"grid\": \"${N}x${N}\", \"options\": \"${4:-}\", \"rc\": $rc, \"wall_s\": $(python3 -c "print(round($t1 - $t0, 2))")}" | tee -a "$OUT/gpu.jsonl"
 cp /tmp/atlas/summary.json "$OUT/atlas_summary.json" 2>/dev/null
 cp /tmp/atlas/motion.png "$OUT/atlas_motion.png" 2>/dev/null
 true

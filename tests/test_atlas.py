@@ -196,7 +196,9 @@ def test_cli_map_bad_input_is_one_line(tmp_path, capsys):
     for extra, word in ((["--y", "nut.preloadn"], "unknown parameter"),
                         (["--y", "force_n", "--x-num", "0"], "--x-num"),
                         (["--y", "force_n", "--y-stop", "4000"], "--y-start"),
-                        (["--y", "force_n", "--x-start", "-1"], "positive")):
+                        (["--y", "force_n", "--x-start", "-1"], "positive"),
+                      (["--y", "force_n", "--engine", "vmap", "--kernel-checks"],
+                       "--kernel-checks")):
         capsys.readouterr()
         assert main(base + extra) == 1
         err = capsys.readouterr().err.strip()

@@ -141,6 +141,14 @@ def _cases(tmp_path):
             ["sweep", "--param", "nut.balls", "--start", "0", "--stop", "40", "--num", "5",
              "--frequency", "1000", "--out", str(tmp_path / "o4")], 1,
             "'nut.balls' = 0 is outside the allowed range"),
+        "sweep kernel checks without the kernel": (
+            ["sweep", "--start", "500", "--stop", "600", "--num", "2", "--force", "100",
+             "--engine", "vmap", "--kernel-checks", "--out", str(tmp_path / "o14")], 1,
+            "--kernel-checks runs the orbit checks on the kernel engine's kernel"),
+        "sweep kernel checks without verification": (
+            ["sweep", "--start", "500", "--stop", "600", "--num", "2", "--force", "100",
+             "--engine", "kernel", "--kernel-checks", "--no-verify", "--out",
+             str(tmp_path / "o15")], 1, "drop --no-verify"),
         "synth noise below 0 dB": (["synth", "--frequency", "100", "--force", "10",
                                     "--noise-db", "-1000", "--out", str(tmp_path / "r.csv")],
                                    2, "signal-to-noise ratio from 0 to 120 dB"),
@@ -187,6 +195,8 @@ def _high_frequency_record(path):
 @pytest.mark.parametrize("name", ["nan force", "inf frequency", "unknown solver",
                                   "binary parameter file", "empty parameter file",
                                   "output under a file", "sweep range through zero balls",
+                                  "sweep kernel checks without the kernel",
+                                  "sweep kernel checks without verification",
                                   "frequency for a static metric", "synth noise below 0 dB",
                                   "identify zero starts", "identify unknown prior",
                                   "identify preload and hertz together",
@@ -321,3 +331,29 @@ def test_continue_starts_harmonic_balance_high_where_a_joint_opens():
     # a looser tolerance needs half as many near the peak
     assert starting_harmonics(p, 100.0, 1000.0, 1250.0, "auto", None, 1e-4)[0] == \
         CONTACT_HARMONICS // 2
+
+
+def test_kernel_checks_reach_the_verification(capsys, tmp_path, monkeypatch):
+    """`--kernel-checks` asks the verification for its orbit checks on the kernel
+    (`VerifySettings.kernel_checks`), for `sweep` and `map`; without it they stay vmapped."""
+    import bsfs_jax.analysis as analysis
+    from bsfs_jax.cli._common import CLIError
+
+    seen = []
+
+    def capture(*args, verify=None, **kwargs):
+        seen.append(verify.kernel_checks)
+        raise CLIError("captured")
+
+    monkeypatch.setattr(analysis, "sweep", capture)
+    monkeypatch.setattr(analysis, "atlas", capture)
+    base = ["sweep", "--start", "500", "--stop", "600", "--num", "2", "--force", "100",
+            "--engine", "kernel"]
+    for k, extra in enumerate(([], ["--kernel-checks"])):
+        assert main(base + extra + ["--out", str(tmp_path / f"s{k}")]) == 1
+    grid = ["map", "--x-start", "500", "--x-stop", "600", "--x-num", "2", "--y-start", "100",
+            "--y-stop", "200", "--y-num", "2", "--engine", "kernel", "--no-bifurcations"]
+    for k, extra in enumerate(([], ["--kernel-checks"])):
+        assert main(grid + extra + ["--out", str(tmp_path / f"m{k}")]) == 1
+    assert "captured" in capsys.readouterr().err
+    assert seen == [False, True, False, True]

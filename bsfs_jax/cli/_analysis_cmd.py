@@ -106,7 +106,10 @@ def run(args) -> int:
                        f"{args.samples_per_period} samples exceed {MAX_SAMPLES:.0e}: the "
                        "spectra alone would not fit in memory; lower one of them")
     params = ui.load_params_from_args(args)
-    verify = None if args.no_verify else VerifySettings()
+    if args.no_verify and args.kernel_checks:
+        raise ui.CLIError("--kernel-checks runs the verification's orbit checks: drop "
+                          "--no-verify")
+    verify = None if args.no_verify else VerifySettings(kernel_checks=args.kernel_checks)
     try:
         problem = bsfs_problem(params, args.param, frequency_hz=args.frequency,
                                force_n=args.force)

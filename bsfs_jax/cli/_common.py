@@ -260,6 +260,10 @@ def add_engine_args(parser, chunk_help: str = "points per checkpoint chunk") -> 
                         "kernel on a GPU, vmap elsewhere)")
     parser.add_argument("--chunk", type=count(1, 10**6), default=None,
                         help=f"{chunk_help} (default 32; 8192 with the kernel engine)")
+    parser.add_argument("--kernel-checks", action="store_true",
+                        help="run the verification's orbit checks on the per-lane kernel "
+                        "as well (needs the kernel engine: --engine kernel, or auto on a "
+                        "GPU; not yet timed on a GPU, so off by default)")
 
 
 def engine_settings(args) -> dict:
@@ -272,4 +276,7 @@ def engine_settings(args) -> dict:
                        "--lyapunov or use --engine vmap")
     kernel = engine == "kernel" or (engine == "auto" and jax.default_backend() == "gpu"
                                     and not getattr(args, "lyapunov", False))
+    if getattr(args, "kernel_checks", False) and not kernel:
+        raise CLIError("--kernel-checks runs the orbit checks on the kernel engine's "
+                       "kernel: add --engine kernel (or run on a GPU with --engine auto)")
     return {"engine": engine, "chunk_size": args.chunk or (8192 if kernel else 32)}

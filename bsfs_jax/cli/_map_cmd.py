@@ -290,7 +290,8 @@ def run(args) -> int:
     verify = VerifySettings(max_period=args.max_period, max_blocks=args.max_blocks,
                             min_blocks=min(3, args.max_blocks),
                             block_periods=args.block_periods,
-                            align_periods=min(16, args.block_periods // 4))
+                            align_periods=min(16, args.block_periods // 4),
+                            kernel_checks=args.kernel_checks)
     folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
     if bifs is not None and args.method == "shooting":
         # The rows' corrector is the longest compilation of a cold map (traced ~4 s,
