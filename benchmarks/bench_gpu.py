@@ -269,15 +269,15 @@ def phase_timers():
     # Each batch call of the checks (vmapped or on the kernel): its seconds, lanes, and
     # its lockstep length, the longest lane's n x (chord iterations + 2) periods (what a
     # vmapped call's time follows on an accelerator; a kernel call's lanes run apart).
+    import jax
+    import numpy as np
+
     batches = []
 
     def wrap_batch(name):
         fn = getattr(_orbit_trials, name)
 
         def timed_batch(*a, **k):
-            import jax
-            import numpy as np
-
             t0 = time.perf_counter()
             out = jax.block_until_ready(fn(*a, **k))
             n, steps = np.asarray(a[6]), np.asarray(out.steps)
