@@ -50,6 +50,8 @@ def main():
                    help="SweepConfig.kernel_fast for the kernel engine (1 or 0)")
     p.add_argument("--unroll", type=int, default=1,
                    help="SweepConfig.kernel_unroll for the kernel engine")
+    p.add_argument("--looped", type=int, default=0,
+                   help="SweepConfig.kernel_looped for the kernel engine (1 or 0)")
     p.add_argument("--smoke", type=int, default=1, help="run case 1 (1) or not (0)")
     p.add_argument("--kernel-checks", type=int, default=0,
                    help="VerifySettings.kernel_checks of the verified case (the orbit "
@@ -81,6 +83,7 @@ def main():
     dev = jax.devices()[0]
     info = {"case": "machine", "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
             "kernel_fast": bool(args.kernel_fast), "kernel_unroll": args.unroll,
+            "kernel_looped": bool(args.looped),
             "device": str(getattr(dev, "device_kind", dev)), "backend": jax.default_backend(),
             "jax": jax.__version__, "cpu_threads": os.cpu_count()}
 
@@ -100,7 +103,7 @@ def main():
         base = dict(transient_periods=n_tr, periods=n_samp, samples_per_period=1,
                     lyapunov=False, batch_size=n, chunk_size=n, engine=engine,
                     settings=settings, kernel_fast=bool(args.kernel_fast),
-                    kernel_unroll=args.unroll)
+                    kernel_unroll=args.unroll, kernel_looped=bool(args.looped))
         base.update(kw)
         return SweepConfig(**base)
 

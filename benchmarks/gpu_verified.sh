@@ -17,6 +17,9 @@
 # Needs the wheels of h5netcdf and tomli_w (the image lacks both) in .whl/, carried:
 #   echo /.whl/ >> .git/info/exclude
 #   .venv/bin/pip download --no-deps --only-binary=:all: -d .whl h5netcdf==1.8.2 tomli_w==1.2.0
+# Environment: KC="1" runs the kernel-checks case alone; LOOPED=1 runs every kernel with
+# its stages looped (SweepConfig.kernel_looped); B1="240,2048" first times the cold B1
+# sweep at those point counts. An ATLAS_TIMEOUT_S of 0 skips the atlas.
 # Rows go to $OUT/gpu.jsonl.
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg BSFS_CACHE_DIR=/tmp/bsfs-cache
 python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl || exit 1
@@ -25,15 +28,23 @@ nvidia-smi --query-gpu=name,clocks.max.sm,driver_version --format=csv,noheader
 N=${3:-256}
 nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv,noheader -l 5 \
   > "$OUT/util.txt" 2>&1 &
+if [ -n "${B1:-}" ]; then  # B1="240,2048": the cold B1 sweep at these point counts first
+  JAX_LOG_COMPILES=1 timeout 90 python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 \
+    --points "$B1" --numba-points "" --vmap-points "" --verify-points "" \
+    --looped "${LOOPED:-0}" 2> >(grep -E "XLA compilation|Very slow|rror" | cut -c1-200 \
+    > "$OUT/compiles_b1.txt")
+fi
 if [ "${1:-150}" != 0 ]; then
-  for kc in 0 1; do  # the orbit checks vmapped, then on the kernel (each a fresh process)
+  for kc in ${KC:-0 1}; do  # the orbit checks vmapped, then on the kernel (each a fresh
+    # process; KC="1" runs the kernel case alone)
     JAX_LOG_COMPILES=$kc timeout "${1:-150}" python3 benchmarks/bench_gpu.py --out "$OUT" \
       --smoke 0 --points "" --numba-points "" --vmap-points "" --verify-points 2048 \
-      --budget 100 --kernel-checks $kc 2> >(grep -E "XLA compilation|Very slow|rror" \
+      --budget 100 --kernel-checks $kc --looped "${LOOPED:-0}" 2> >(grep -E "XLA compilation|Very slow|rror" \
       | cut -c1-200 > "$OUT/compiles_kernel_checks_$kc.txt")
     echo "{\"case\": \"verified process\", \"kernel_checks\": $kc, \"rc\": $?}" | tee -a "$OUT/gpu.jsonl"
   done
 fi
+[ "${2:-240}" = 0 ] && exit 0  # no atlas
 t0=$(date +%s.%N)
 timeout "${2:-240}" python3 -c "import sys; from bsfs_jax.cli import run; sys.argv[0] = 'bsfs'; run()" \
   map --x-start 100 --x-stop 4000 --x-num "$N" --y-start 1000 --y-stop 8000 --y-num "$N" \

@@ -155,6 +155,27 @@ def test_kernel_unrolled_steps_give_the_same_lanes_bit_for_bit():
         np.testing.assert_array_equal(a[keep], b[keep])
 
 
+def test_kernel_looped_stages_are_the_unrolled_method_to_rounding(problem):
+    """`looped=True` (the step's stages as a loop, the field inlined once; the restart
+    takes the last stage, first same as last): on the ball screw the same step counts to
+    a few steps and samples to within the tolerance's reach of the unrolled kernel's
+    (the stages' sums are the same terms, only rounded in another order)."""
+    freqs = np.array([900.0, 3000.0])
+    args, periods = _lanes_setup(problem, freqs)
+    run = lambda looped: integrate_lanes(
+        vector_field_components, jnp.zeros((2, 6)), args, 6 * periods, periods,
+        n_samples=8, samples_per_period=4, max_steps=10**6, block=2, backend="interpret",
+        fast=True, looped=looped, **TOL)
+    a, b = run(False), run(True)
+    assert np.all(np.asarray(a[3]) == 0) and np.all(np.asarray(b[3]) == 0)
+    steps_a, steps_b = np.asarray(a[4]), np.asarray(b[4])
+    assert np.all(np.abs(steps_a - steps_b) <= 0.01 * steps_a), (steps_a, steps_b)
+    scale = np.max(np.abs(np.asarray(a[1])), axis=1, keepdims=True)
+    assert np.max(np.abs(np.asarray(b[1]) - np.asarray(a[1])) / scale) < 1e-6
+    np.testing.assert_allclose(np.asarray(b[0]), np.asarray(a[0]), rtol=0,
+                               atol=1e-6 * float(np.max(scale)))
+
+
 def test_kernel_lanes_stop_at_their_own_sample_counts():
     """`lane_samples`: a lane stops after its own first samples, which are the full run's
     bit for bit (the same steps up to there), in fewer steps; the start is unchanged."""
@@ -348,6 +369,16 @@ def test_orbit_checks_on_the_kernel_are_the_vmapped_checks(duffing_problem):
     err = {k: np.abs(np.asarray(c.monodromy) - ref).max() for k, c in (("vmap", a),
                                                                        ("lanes", b))}
     assert err["lanes"] <= err["vmap"], err
+    # The same checks with the kernel's stages unrolled (`looped=False`; looped is the
+    # default): the same orbits.
+    c = check_orbits_lanes(p.component_field, p.setup, p.data, _GAMMAS, y, scale, n,
+                           block=2, fast=True, looped=False, **kw)
+    assert np.asarray(c.converged).all()
+    np.testing.assert_array_equal(np.asarray(c.steps), np.asarray(b.steps))
+    np.testing.assert_allclose(np.asarray(c.state), np.asarray(b.state), rtol=0,
+                               atol=1e-6 * amp.max())
+    np.testing.assert_allclose(np.asarray(c.multipliers), np.asarray(b.multipliers),
+                               rtol=0, atol=1e-5)
 
 
 def test_verifier_runs_its_checks_on_the_kernel_where_asked(duffing_problem, monkeypatch):

@@ -34,7 +34,7 @@ class OrbitTrials:
                  kernel: dict | None = None):
         self.p, self.s, self.obs = problem, settings, observe
         self.lanes = int(settings.batch if lanes is None else lanes)
-        # {"fast", "block"}: the checks on the per-lane kernel (`check_orbits_lanes`, on
+        # {"fast", "block", "looped"}: the checks on the per-lane kernel (`check_orbits_lanes`, on
         # the problem's component field), else None (vmapped, `check_orbits`); not where
         # they failed before in this process (one warning, not one per chunk)
         self.kernel = kernel

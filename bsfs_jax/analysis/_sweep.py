@@ -327,7 +327,8 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
         if problem.component_field is None:
             raise ValueError("VerifySettings(kernel_checks=True) needs a problem with a "
                              "component_field (the per-lane kernel's form of the field)")
-        kernel = {"fast": bool(config.kernel_fast), "block": int(config.kernel_block)}
+        kernel = {"fast": bool(config.kernel_fast), "block": int(config.kernel_block),
+                  "looped": bool(config.kernel_looped)}
     # The verifier's orbit checks compile on the second core while the sweep integrates
     # (for the lanes `verify_sweep` will use: its chunk's, wide; else `verify.batch`).
     chunk = max(int(config.chunk_size), 16)

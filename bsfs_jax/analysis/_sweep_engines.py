@@ -114,7 +114,8 @@ def _kernel_points(problem, values, y0s, n_transient, cfg: SweepConfig):
         problem.component_field, y0s, args, n_tr * periods, periods, n_samples=P * spp,
         samples_per_period=spp, rtol=settings.rtol, atol=settings.atol,
         max_steps=settings.max_steps, block=int(cfg.kernel_block),
-        fast=bool(cfg.kernel_fast), unroll=int(cfg.kernel_unroll))
+        fast=bool(cfg.kernel_fast), unroll=int(cfg.kernel_unroll),
+        looped=bool(cfg.kernel_looped))
     samples = samples.reshape(N, P, spp, n)
     return jax.vmap(lambda *a: _reduce(problem, cfg, *a))(
         samples, start, end, codes, steps.astype(int), periods)

@@ -47,6 +47,11 @@ class SweepConfig:
       loop's controller to the bit. The field is the problem's `component_field` either way.
     - `kernel_unroll`: kernel engine: steps per test of the loop's block-wide condition
       (`integrate_lanes(unroll=...)`; the same results for any value).
+    - `kernel_looped`: kernel engine: the step's stages as a loop, the field inlined once
+      (`integrate_lanes(looped=...)`; the same method to rounding). The default: on an
+      H200 its program compiled in 4.4 s against 13.5 s unrolled, for a run 1.23x as long
+      (B1, 2048 points: 1.69 against 1.38 s; benchmarks/results/gpu_b1.md); False where
+      one program runs many times.
     - `max_slice_periods`: queue engine: at most this many periods per slice.
     - `settings`: `SolverSettings` (tolerances, max_steps, solver; default the fused
       Dormand-Prince 5(4) loop "dopri5-fused", or any diffrax solver name).
@@ -65,6 +70,7 @@ class SweepConfig:
     kernel_block: int = 32
     kernel_fast: bool = True
     kernel_unroll: int = 1
+    kernel_looped: bool = True
     max_slice_periods: int = 64
     # Sweeps are forward-only, so they default to the fused Dormand-Prince loop (about 3x
     # cheaper per step than diffrax's general loop here; cross-checked in tests/test_fused.py).

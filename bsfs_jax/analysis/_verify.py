@@ -242,7 +242,7 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
     `lanes`: lockstep lanes of the checks (default `settings.lanes_for(K)`); a wide
     verification also pads its continuation blocks to that many points. `settle`: the
     settle blocks' runner (`_sweep_engines.SettleRuns`), or None for none. `kernel`:
-    {"fast", "block"} to run the orbit checks on the per-lane kernel
+    {"fast", "block", "looped"} to run the orbit checks on the per-lane kernel
     (`solvers.check_orbits_lanes`), or None (vmapped)."""
     s = settings
     K = len(values)

@@ -24,6 +24,12 @@ it with `fast=True` (`model.kernel_vector_field`: no float64 division or square 
 the kernel's own `fast` controller arithmetic; on an H100 that took a step of the slowest
 lane from 13.0 to 4.3 us (benchmarks/results/gpu_b1.md).
 
+With `looped=True` the step's six new stages are a loop over the stage index, so the
+field is inlined once rather than eight times; Triton's and ptxas' time grows faster
+than the program, so on an H200 the sweep's kernel then compiled in 4.4 s rather than
+13.5 s and the orbit checks' three kernels in 18.5 s rather than 84.4 s, for runs about
+1.2x as long (the tableau's zeros multiplied, its coefficients picked per stage).
+
 On a CPU (or wherever Triton is not available) the kernel runs in Pallas' interpret mode:
 slow, for tests; there the fused loop stays the default.
 """
@@ -80,9 +86,46 @@ def _error_norm(err, y, y_new, rtol, atol, fast):
     return sum(x * x for x in terms) * (1.0 / len(terms))
 
 
+def _stages(f, t, y, h, k1, n):
+    """The step's seven stages, unrolled: the field inlined six times."""
+    ks = [k1]
+    for i in range(1, 7):
+        yi = tuple(y[c] + h * sum(_A[i][j] * ks[j][c] for j in range(i) if _A[i][j] != 0.0)
+                   for c in range(n))
+        ks.append(f(t + _C[i] * h, yi))
+    return ks
+
+
+def _pick(i, values):
+    """values[i] for a traced scalar index i over a constant row (no gather in a kernel;
+    the constants strongly typed: Pallas-Triton types a weak one in a select as the
+    predicate)."""
+    zero = jnp.asarray(0.0, dtype=float)
+    return sum(jnp.where(i == r, jnp.asarray(v, dtype=float), zero)
+               for r, v in enumerate(values) if v != 0.0)
+
+
+def _stages_looped(f, t, y, h, k1, n):
+    """The same stages as a loop over the stage index: the field is inlined once, so the
+    kernel's program is several times smaller (compile time on a GPU), for the tableau's
+    coefficients picked per stage and its zeros multiplied."""
+    zero = jnp.zeros_like(k1[0])
+    a = [[_A[i][j] if j < i else 0.0 for i in range(7)] for j in range(6)]
+
+    def stage(i, ks):
+        yi = tuple(y[c] + h * sum(_pick(i, a[j]) * ks[j][c] for j in range(6))
+                   for c in range(n))
+        ki = f(t + _pick(i, _C) * h, yi)
+        return tuple(tuple(jnp.where(i == j, ki[c], ks[j][c]) for c in range(n))
+                     if j > 0 else ks[j] for j in range(7))
+
+    ks = (tuple(k1),) + tuple(tuple(zero for _ in range(n)) for _ in range(6))
+    return list(jax.lax.fori_loop(1, 7, stage, ks))
+
+
 def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, block, n_pad,
-            fast, unroll, per_lane, p_ref, y0_ref, start_ref, end_ref, samples_ref, code_ref,
-            steps_ref):
+            fast, unroll, per_lane, looped, p_ref, y0_ref, start_ref, end_ref, samples_ref,
+            code_ref, steps_ref):
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
@@ -125,11 +168,7 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
         target = jnp.where(recording, t_rec + period * (s["k"].astype(float) / spp), t_rec)
         clipped = t + h >= target
         h_eff = jnp.where(clipped, target - t, h)
-        ks = [k1]
-        for i in range(1, 7):
-            yi = tuple(y[c] + h_eff * sum(_A[i][j] * ks[j][c] for j in range(i)
-                                          if _A[i][j] != 0.0) for c in range(n))
-            ks.append(f(t + _C[i] * h_eff, yi))
+        ks = (_stages_looped if looped else _stages)(f, t, y, h_eff, k1, n)
         y_new = tuple(y[c] + h_eff * sum(_B5[j] * ks[j][c] for j in range(6) if _B5[j] != 0.0)
                       for c in range(n))
         err = [h_eff * sum(_E[j] * ks[j][c] for j in range(7) if _E[j] != 0.0)
@@ -163,7 +202,10 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
         def restart():
             for c in range(n):
                 plgpu.store(start_ref.at[c * n_pad + lanes], y_out[c], mask=switch)
-            f_rec = f(t_out, y_out)
+            # Looped: the step's last stage is the field at (t_out, y_out) already (a
+            # switching lane took an accepted, clipped step; first same as last), so the
+            # kernel holds the field once more only for the start, not for the restart.
+            f_rec = k1_out if looped else f(t_out, y_out)
             return f_rec, restart_step(t_out, t_end, y_out, f_rec)
 
         def events():
@@ -212,7 +254,8 @@ def _kernel(field, treedef, layouts, n, n_samples, spp, rtol, atol, max_steps, b
 def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
                     samples_per_period: int, rtol: float, atol: float, max_steps: int,
                     block: int = 32, num_warps: int = 1, backend: str | None = None,
-                    fast: bool = False, unroll: int = 1, lane_samples=None):
+                    fast: bool = False, unroll: int = 1, lane_samples=None,
+                    looped: bool = False):
     """Integrate N independent lanes of y' = field(t, y, args), each in its own loop.
 
     Lane i runs from t = 0 and state `y0[i]` to `t_record[i]` (its transient), then on over
@@ -234,6 +277,8 @@ def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
       from the fused loop's. With `fast=False` and the same field the kernel repeats the
       fused loop step for step.
     - `unroll`: steps per test of the loop's block-wide condition (the same results).
+    - `looped`: the step's stages as a loop, the field inlined once rather than eight
+      times (a smaller program, compiled faster on a GPU; the same method to rounding).
     - `lane_samples` (N,) ints in 1..n_samples, optional: lane i stops after its own
       first `lane_samples[i]` samples (the rest of its samples are undefined).
 
@@ -267,7 +312,7 @@ def integrate_lanes(field, y0, args, t_record, period, *, n_samples: int,
     kernel = functools.partial(
         _kernel, field, treedef, tuple(layouts), n, int(n_samples), float(samples_per_period),
         float(rtol), float(atol), int(max_steps), int(block), int(n_pad), bool(fast),
-        int(unroll), per_lane)
+        int(unroll), per_lane, bool(looped))
     out_shape = (jax.ShapeDtypeStruct((n * n_pad,), float),
                  jax.ShapeDtypeStruct((n * n_pad,), float),
                  jax.ShapeDtypeStruct((n * n_samples * n_pad,), float),

@@ -19,6 +19,10 @@ kernel, in which each point's loop is its own:
   `check_orbits`);
 - the orbit's samples over its n periods.
 
+Every kernel here runs with its stages looped by default (`integrate_lanes(looped=True)`):
+on an H200 the whole program (three Triton kernels) then compiled in 18.5 s, against
+84.4 s unrolled (benchmarks/results/gpu_b1.md, 2026-11-30), for the same checks.
+
 The results are `check_orbits`' (`OrbitCheck`) to the integrator's error (a run is
 restarted where `check_orbits` saves on the way, and the kernel may run the fast forms),
 well inside the checks' Newton tolerance. The field is the problem's `component_field`
@@ -77,32 +81,33 @@ def _tighter(settings):
                                atol=settings.atol / _COLUMN_TIGHTER)
 
 
-def _monodromy(g, z0, sargs, t_end, period, settings, fast, block):
+def _monodromy(g, z0, sargs, t_end, period, settings, fast, block, looped):
     """(Phi^{T_end}(z0), the monodromy matrix (B, d, d), ok (B,)): point i's column j on
     lane i d + j (`_tangent`), the state taken from its column 0's lane."""
     B, d = z0.shape
     rep = lambda a: jnp.repeat(a, d, axis=0)  # noqa: E731 - lane i d + j: point i
     w0 = jnp.concatenate([rep(z0), jnp.tile(jnp.eye(d), (B, 1))], axis=1)
     w, codes = _run_to(_tangent(g, d), w0, jax.tree_util.tree_map(rep, sargs), rep(t_end),
-                       rep(period), _tighter(settings), fast, block)
+                       rep(period), _tighter(settings), fast, block, looped)
     w = w.reshape(B, d, 2 * d)
     ok = jnp.all(codes.reshape(B, d) == _OK, axis=1)
     return w[:, 0, :d], jnp.swapaxes(w[:, :, d:], 1, 2), ok
 
 
-def _run_to(field, y, args, t_end, period, settings, fast, block):
+def _run_to(field, y, args, t_end, period, settings, fast, block, looped):
     """States at t_end (per lane) from y at 0, and the lanes' result codes."""
     start, _, _, codes, _ = integrate_lanes(
         field, y, args, t_end, _TAIL * period, n_samples=1, samples_per_period=1,
         rtol=settings.rtol, atol=settings.atol, max_steps=settings.max_steps, block=block,
-        fast=fast)
+        fast=fast, looped=looped)
     return start, codes
 
 
 @functools.partial(jax.jit, static_argnames=("field", "setup", "max_steps", "max_period",
-                                             "spp", "settings", "fast", "block"))
+                                             "spp", "settings", "fast", "block",
+                                             "looped"))
 def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max_period,
-           spp, settings, fast, block):
+           spp, settings, fast, block, looped):
     B, d = y_guess.shape
     args, period = jax.vmap(lambda v: setup(data, v))(values)
     period = jnp.asarray(period, dtype=float)
@@ -113,7 +118,7 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     sargs = (args, scale, 1.0 / scale)
     g = _scaled(field)
     z0 = y_guess / scale
-    z_end, phi, ok0 = _monodromy(g, z0, sargs, t_end, period, settings, fast, block)
+    z_end, phi, ok0 = _monodromy(g, z0, sargs, t_end, period, settings, fast, block, looped)
     f0 = jnp.where(ok0[:, None], z_end - z0, jnp.nan)
     j0 = phi - eyes
     j0 = jnp.where(ok0[:, None, None], j0, jnp.nan)
@@ -132,7 +137,7 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
         go = pending(z, f, k, ok)
         z_try = z - jax.vmap(jax.scipy.linalg.lu_solve)(lu, f)
         y, st = _run_to(g, jnp.where(go[:, None], z_try, z), sargs, t_end, period, settings,
-                        fast, block)
+                        fast, block, looped)
         f_try = jnp.where((st == _OK)[:, None], y - z_try, jnp.nan)
         keep = lambda new, old: jnp.where(go[:, None], new, old)  # noqa: E731
         ok_new = jnp.where(go, jnp.all(jnp.isfinite(f_try), axis=1), ok)
@@ -150,7 +155,7 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     first, rest, _, st, _ = integrate_lanes(
         g, z, sargs, period / spp, period, n_samples=m - 1, samples_per_period=spp,
         rtol=settings.rtol, atol=settings.atol, max_steps=settings.max_steps, block=block,
-        fast=fast, lane_samples=jnp.maximum(n * spp - 1, 1))
+        fast=fast, lane_samples=jnp.maximum(n * spp - 1, 1), looped=looped)
     ys = jnp.concatenate([first[:, None], rest], axis=1) * scale[:, None, :]
     j = jnp.arange(1, m + 1, dtype=float)
     valid = (j[None] <= nf[:, None] * spp) & (st == _OK)[:, None]
@@ -168,18 +173,19 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
 def check_orbits_lanes(component_field, setup, data, values, y_guess, scale, n, *,
                        tol: float = 1e-6, max_steps: int = 16, max_period: int = 16,
                        samples_per_period: int = 32, settings=CHECK_SETTINGS,
-                       fast: bool = False, block: int = 32) -> OrbitCheck:
+                       fast: bool = False, block: int = 32,
+                       looped: bool = True) -> OrbitCheck:
     """`check_orbits` with every integration on the per-lane kernel (module docstring).
 
     `component_field(t, ys, args)`: the system on a tuple of state components (the
     `SweepProblem.component_field`, elementwise); `setup(data, value) -> (args, period)`
     as for `check_orbits`, its args' leaves per point. `settings`: the checks' rtol, atol
-    and max_steps (a `SolverSettings`); `fast`, `block`: as `integrate_lanes`. One program
-    per batch layout; values, states, scales and periods are traced.
+    and max_steps (a `SolverSettings`); `fast`, `block`, `looped`: as `integrate_lanes`.
+    One program per batch layout; values, states, scales and periods are traced.
     """
     return _check(component_field, setup, data, jnp.asarray(values, dtype=float),
                   jnp.asarray(y_guess, dtype=float), jnp.asarray(scale, dtype=float),
                   jnp.asarray(n, dtype=int), jnp.asarray(tol, dtype=float),
                   max_steps=int(max_steps), max_period=int(max_period),
                   spp=int(samples_per_period), settings=settings, fast=bool(fast),
-                  block=int(block))
+                  block=int(block), looped=bool(looped))
