@@ -46,7 +46,7 @@ if [ "${1:-150}" != 0 ]; then
 fi
 [ "${2:-240}" = 0 ] && exit 0  # no atlas
 t0=$(date +%s.%N)
-timeout "${2:-240}" python3 -c "import sys; from bsfs_jax.cli import run; sys.argv[0] = 'bsfs'; run()" \
+BSFS_PROGRESS=1 timeout "${2:-240}" python3 -c "import sys; from bsfs_jax.cli import run; sys.argv[0] = 'bsfs'; run()" \
   map --x-start 100 --x-stop 4000 --x-num "$N" --y-start 1000 --y-stop 8000 --y-num "$N" \
   --no-bifurcations --engine kernel ${4:-} --out /tmp/atlas 2>&1 | tr '\r' '\n' | grep -v '^$' | tail -25
 rc=${PIPESTATUS[0]}

@@ -229,6 +229,29 @@ def test_no_progress_is_accepted_by_every_long_command():
         assert parser.parse_args([*argv, "--no-progress"]).no_progress
 
 
+def test_progress_shows_off_a_terminal_only_where_asked(monkeypatch):
+    """Progress bars follow the terminal, unless `BSFS_PROGRESS` says 1 (a batch job's
+    log) or 0; `--no-progress` always hides them."""
+    import io
+    import sys
+    from types import SimpleNamespace
+
+    from bsfs_jax.cli._common import progress_enabled
+
+    monkeypatch.setattr(sys, "stderr", io.StringIO())  # not a terminal
+    quiet, plain = SimpleNamespace(no_progress=True), SimpleNamespace(no_progress=False)
+    monkeypatch.delenv("BSFS_PROGRESS", raising=False)
+    assert not progress_enabled(plain)
+    monkeypatch.setenv("BSFS_PROGRESS", "1")
+    assert progress_enabled(plain) and not progress_enabled(quiet)
+    monkeypatch.setenv("BSFS_PROGRESS", "0")
+    assert not progress_enabled(plain)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert not progress_enabled(plain)
+    monkeypatch.setenv("BSFS_PROGRESS", "yes please")  # not 0 or 1: the terminal decides
+    assert progress_enabled(plain) and not progress_enabled(quiet)
+
+
 def test_implausible_values_warn_in_one_line_and_still_run(capsys):
     assert main(["modes", "--set", "nut.preload_n=1e30"]) == 0
     err = capsys.readouterr().err

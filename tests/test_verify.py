@@ -64,6 +64,25 @@ def test_lightly_damped_oscillator_far_above_resonance_is_period_1_from_a_short_
     assert strobe_period(res.strobe[0, 0], scale=res.amplitude[0, 0]) == 0
 
 
+def test_host_eigvals_are_numpys_under_jit_and_vmap():
+    """The checks' multipliers come from `solvers.host_eigvals` (LAPACK on the host, not
+    cuSOLVER's one-matrix-at-a-time geev on a GPU): the same eigenvalues as numpy's, a
+    complex pair included, traced and batched."""
+    import jax
+
+    from bsfs_jax.solvers import host_eigvals
+
+    rng = np.random.default_rng(3)
+    m = rng.normal(size=(4, 3, 6, 6))
+    m[0, 0] = np.diag([0.5, 2.0, -1.0, 3.0, 0.1, 0.2])
+    m[0, 0, 0, 1], m[0, 0, 1, 0] = 1.0, -1.0  # a complex pair
+    got = np.asarray(jax.jit(jax.vmap(host_eigvals))(jnp.asarray(m)))
+    want = np.linalg.eigvals(m)
+    assert got.shape == want.shape == (4, 3, 6)
+    for g, w in zip(got.reshape(-1, 6), want.reshape(-1, 6)):
+        np.testing.assert_allclose(np.sort_complex(g), np.sort_complex(w), rtol=0, atol=1e-12)
+
+
 def test_a_period_1_orbit_solved_over_5_periods_is_not_period_5():
     # Newton on Phi^{5T}(y) = y from a period-1 sample converges to the period-1 orbit; its
     # five-period multipliers (mu^5) look like those of a stable period-5 orbit. It must

@@ -35,7 +35,7 @@ import numpy as np
 
 from .._files import jsonable, save_npz_atomic
 from .._numerics import half_range
-from ..solvers import CHECK_SETTINGS, SolverSettings, result_codes, result_text
+from ..solvers import CHECK_SETTINGS, SolverSettings, host_eigvals, result_codes, result_text
 from . import _evidence as ev
 from ._block_verdict import UNRESOLVED, block_verdict
 from ._extend import run_block
@@ -181,7 +181,7 @@ def _decay_rates(problem, values):
     def one(v):
         args, _ = problem.setup(problem.data, v)
         jac = jax.jacfwd(lambda y: problem.vector_field(0.0, y, args))(problem.y0)
-        rate = -jnp.real(jnp.linalg.eigvals(jac))
+        rate = -jnp.real(host_eigvals(jac))
         return jnp.where(jnp.all(rate > 0), jnp.min(rate), jnp.nan)
 
     return jax.vmap(one)(values)

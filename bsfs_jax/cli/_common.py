@@ -211,10 +211,15 @@ def write_json(path, data) -> None:
 
 
 def progress_enabled(args) -> bool:
-    """Progress bars only on a terminal, and never with --no-progress."""
+    """Progress bars on a terminal, or wherever `BSFS_PROGRESS=1` asks for them (a batch
+    job's log); never with --no-progress or `BSFS_PROGRESS=0`."""
+    import os
     import sys
 
-    return not getattr(args, "no_progress", False) and sys.stderr.isatty()
+    if getattr(args, "no_progress", False):
+        return False
+    wanted = os.environ.get("BSFS_PROGRESS", "").strip()
+    return wanted == "1" if wanted in ("0", "1") else sys.stderr.isatty()
 
 
 #: Plausible excitation of a machine-tool feed drive by a shaker or the cutting process.

@@ -30,6 +30,7 @@ from ._orbit import periodic_orbit as periodic_orbit
 from ._orbit_check import CHECK_SETTINGS as CHECK_SETTINGS
 from ._orbit_check import OrbitCheck as OrbitCheck
 from ._orbit_check import check_orbits as check_orbits
+from ._orbit_check import host_eigvals as host_eigvals
 from ._orbit_check import prefetch_check_orbits as prefetch_check_orbits
 from ._orbit_check_lanes import check_orbits_lanes as check_orbits_lanes
 from ._results import RESULTS as RESULTS

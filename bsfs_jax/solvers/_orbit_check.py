@@ -26,6 +26,23 @@ from ._integrate import SolverSettings, integrate
 from ._results import RESULTS
 from ._shooting import Scaled, _Variational
 
+
+def host_eigvals(matrices):
+    """Eigenvalues of a batch of small square matrices (..., d, d), by LAPACK on the host.
+
+    On a GPU jax's default for a general matrix is cuSOLVER's geev where the CUDA version
+    has it, and jaxlib runs its unbatched solvers one matrix at a time: for the checks'
+    2048 monodromy matrices of 6 x 6 likely of the order of a second (a call of the checks
+    cost at least 1.0 s on an H200 with ~0.1 s of integration; not yet confirmed), while
+    the host's LAPACK takes milliseconds. On a CPU this is `jnp.linalg.eigvals` exactly.
+    Not for differentiated code (the batches here are verdicts, not gradients)."""
+    from jax.lax import linalg
+
+    return linalg.eig(matrices, compute_left_eigenvectors=False,
+                      compute_right_eigenvectors=False,
+                      implementation=linalg.EigImplementation.LAPACK)[0]
+
+
 #: Orbit settings of the verifier: Newton reaches 1e-6 (relative, scaled variables; the
 #: orbit to ~1e-6 of its amplitude, the multipliers to ~1e-6) and is cheap enough to run
 #: at every sweep point.
@@ -108,7 +125,7 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
     jac = j0
     res_norm = jnp.max(jnp.abs(f))
     converged = ok & (res_norm <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z))))
-    mu = jnp.linalg.eigvals(jac + eye)
+    mu = host_eigvals(jac + eye)
     mu = mu[jnp.argsort(-jnp.abs(mu))]
     j = jnp.arange(1, max_period * spp + 1, dtype=float)
     ts = jnp.minimum(j * period / spp, t_end)

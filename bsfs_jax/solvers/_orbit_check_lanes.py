@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from ._lanes import integrate_lanes
-from ._orbit_check import CHECK_SETTINGS, OrbitCheck
+from ._orbit_check import CHECK_SETTINGS, OrbitCheck, host_eigvals
 from ._results import RESULTS, result_codes
 
 _OK = int(result_codes(RESULTS.successful))
@@ -146,7 +146,7 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     z, f, k, ok = jax.lax.while_loop(cond, body, (z0, f0, jnp.zeros(B, int), ok0))
     res_norm = jnp.max(jnp.abs(f), axis=1)
     converged = ok & (res_norm <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z), axis=1)))
-    mu = jax.vmap(lambda m: jnp.linalg.eigvals(m + eye))(j0)
+    mu = host_eigvals(j0 + eyes)
     mu = jnp.take_along_axis(mu, jnp.argsort(-jnp.abs(mu), axis=1), axis=1)
     # The orbit's samples at j T / spp, j = 1..n spp: the first saved at the end of the
     # run, the others after it (a lane stops at its own n T, as `check_orbits` does; the
