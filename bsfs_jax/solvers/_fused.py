@@ -166,8 +166,11 @@ def integrate_fused(vector_field, y0, args, t0, t1, ts, rtol, atol, max_steps,
         return s, y
 
     state = (t0, y0, h0, f0, jnp.asarray(0), RESULTS.successful)
-    state, ys = jax.lax.scan(save, state, ts)
-    state = advance(state, t1)
+    # The run's end as one more save time of the same scan (not a second `advance` after
+    # it): the program then holds the step once, not twice (its compile time), for the
+    # same steps.
+    state, ys = jax.lax.scan(save, state, jnp.append(ts, t1))
+    ys = ys[:-1]
     # Save times past t1 cannot be reached.
     result = RESULTS.where((state[5] == RESULTS.successful) & jnp.any(ts > t1 + eps),
                            RESULTS.step_size_failed, state[5])
