@@ -83,6 +83,42 @@ def test_host_eigvals_are_numpys_under_jit_and_vmap():
         np.testing.assert_allclose(np.sort_complex(g), np.sort_complex(w), rtol=0, atol=1e-12)
 
 
+def test_linear_approach_checks_every_pair_against_the_monodromy():
+    """`linear_approach`: samples whose deviations from a period-2 orbit follow
+    e_{j+2} = M e_j exactly show no misfit; one pair pushed off shows exactly its own
+    relative misfit (computed here pair by pair); pairs already on the orbit are skipped;
+    a pair that is not finite gives no verdict (infinite misfit)."""
+    from bsfs_jax.analysis._evidence import linear_approach
+
+    rng = np.random.default_rng(7)
+    d, n, k = 4, 2, 21
+    m = 0.5 * rng.normal(size=(d, d)) / np.sqrt(d)
+    o = rng.normal(size=(n, d))
+    sc = np.array([1.0, 2.0, 0.5, 1.5])
+    idx = (np.arange(k) - (k - 1)) % n
+    e = np.zeros((k, d))
+    for start in (0, 1):  # the two phases' chains, each e_{j+2} = M e_j
+        e[start] = 1e-3 * rng.normal(size=d)
+        for j in range(start + n, k, n):
+            e[j] = m @ e[j - n]
+    s = o[idx] + e * sc
+    dev, misfit = linear_approach(s, o, m, sc, near_tol=1e-12)
+    assert misfit < 1e-6 and dev == pytest.approx(np.linalg.norm(e, axis=1).max())
+    s2 = s.copy()
+    s2[10] += 1e-5 * sc  # a sample at phase 0 (k - 1 - 10 even): two pairs change
+    e2 = (s2 - o[idx]) / sc
+    p0 = np.flatnonzero(idx == 0)
+    want = max(np.linalg.norm(e2[b] - m @ e2[a]) / np.linalg.norm(e2[a])
+               for a, b in zip(p0[:-1], p0[1:]))
+    assert linear_approach(s2, o, m, sc, near_tol=1e-12)[1] == pytest.approx(want, rel=1e-9)
+    assert want > 1e-4
+    # Pairs whose first deviation is below near_tol are not checked.
+    assert linear_approach(s2, o, m, sc, near_tol=1.0)[1] == 0.0
+    s3 = s.copy()
+    s3[-3] = np.nan
+    assert linear_approach(s3, o, m, sc, near_tol=1e-12)[1] == np.inf
+
+
 def test_a_period_1_orbit_solved_over_5_periods_is_not_period_5():
     # Newton on Phi^{5T}(y) = y from a period-1 sample converges to the period-1 orbit; its
     # five-period multipliers (mu^5) look like those of a stable period-5 orbit. It must
