@@ -735,9 +735,12 @@ def _cold(src: Sources, v: Values):
         raise _Absent(f"{a} has no '{name}' command")
 
     put("ab.date", lambda: date10(src.json(a).raw()["date"]), a)
-    for which in ("head", "base"):
-        for i, kind in enumerate(("cold", "warm")):
-            put(f"ab.map_{which}_{kind}", lambda w=which, k=i: sig(ab("map")[w][k], 3), a)
+    for name, key in (("map", "map"), ("continue", "cont"), ("sweep", "sweep"),
+                      ("sensitivity", "sens")):
+        for which in ("head", "base"):
+            for i, kind in enumerate(("cold", "warm")):
+                put(f"ab.{key}_{which}_{kind}",
+                    lambda n=name, w=which, k=i: sig(ab(n)[w][k], 3), a)
     r = "benchmarks/results/resonance.json"
 
     def rset(name):
