@@ -284,16 +284,45 @@ def phase_timers():
             t0 = time.perf_counter()
             out = jax.block_until_ready(fn(*a, **k))
             n, steps = np.asarray(a[6]), np.asarray(out.steps)
+            conv, res, vals = (np.asarray(out.converged), np.asarray(out.residual),
+                               np.asarray(a[3]))
+            # the points whose chord iterations reached their limit or did not converge
+            # (the batch's padding repeats its last point: each (value, n) once)
+            stuck = {}
+            for i in np.flatnonzero((steps >= k.get("max_steps", 16)) | ~conv):
+                stuck.setdefault((float(vals[i]), int(n[i])), {
+                    "value": round(float(vals[i]), 4), "n": int(n[i]),
+                    "chord": int(steps[i]), "residual": float(f"{res[i]:.3g}"),
+                    "converged": bool(conv[i])})
             batches.append({"fn": name, "s": round(time.perf_counter() - t0, 3),
                             "lanes": int(n.size), "n_max": int(n.max()),
                             "chord_max": int(steps.max()),
-                            "lockstep_periods": int(np.max(n * (steps + 2)))})
+                            "lockstep_periods": int(np.max(n * (steps + 2))),
+                            "unconverged": int(np.sum(~conv)),
+                            "stuck": list(stuck.values())[:12]})
             return out
 
         setattr(_orbit_trials, name, timed_batch)
 
     wrap_batch("check_orbits")
     wrap_batch("check_orbits_lanes")
+
+    # Each call of the settle blocks: its seconds, the points it took on and those it
+    # verified (the parameter values of up to 12 pending ones).
+    settle = _orbit_trials.OrbitTrials.settle
+
+    def timed_settle(self, run, pending, values, *rest):
+        t0 = time.perf_counter()
+        out = settle(self, run, pending, values, *rest)
+        try:
+            shown = [round(float(np.asarray(values)[k]), 4) for k in list(pending)[:12]]
+        except Exception:  # noqa: BLE001 - keys that do not index the values
+            shown = []
+        batches.append({"fn": "settle", "s": round(time.perf_counter() - t0, 3),
+                        "points": len(pending), "verified": len(out[0]), "values": shown})
+        return out
+
+    _orbit_trials.OrbitTrials.settle = timed_settle
 
     class Phases:
         def take(self):
