@@ -341,12 +341,50 @@ def test_wide_verification_gives_the_narrow_verdicts(monkeypatch):
         np.testing.assert_allclose(wide[f], narrow[f], rtol=1e-9, atol=1e-12, err_msg=f)
 
 
+def test_orbit_checks_find_the_orbit_to_their_newton_tolerance():
+    """The checks' state-only runs (chord steps, samples) are accurate enough for their
+    Newton tolerance (`STATE_TIGHTER`): on B1's 620 Hz point (5000 N), sampled after the
+    verifier's minimum transient, the orbit found is a fixed point of a reference period
+    map (rtol 1e-12) to the tolerance, and checking again from it converges at once. At
+    the checks' own tolerances a state-only period was 2.9e-6 off, the orbit found 2.6e-6
+    from the reference's, and the check from it stalled at 2.7e-6 for 16 chord steps."""
+    from bsfs_jax.analysis import bsfs_problem
+    from bsfs_jax.analysis._orbit_trials import scale_of
+    from bsfs_jax.params import preset
+    from bsfs_jax.solvers import check_orbits, integrate
+
+    p = bsfs_problem(preset("default"), "frequency_hz", force_n=5000.0)
+    v = 620.0
+    args, period = p.setup(p.data, v)
+    n_tr = float(np.ravel(minimum_transient(p, np.array([v]), np.array([float(period)]),
+                                            VerifySettings(), fallback=200))[0])
+    st = SolverSettings(rtol=1e-8, atol=1e-12, max_steps=10**7, solver="dopri5-fused")
+    ts = period * (n_tr + jnp.arange(1, 17))
+    rec = np.asarray(integrate(p.vector_field, jnp.zeros(6), args, 0.0, ts[-1], ts, st,
+                               throw=False).ys)
+    y, sc = rec[-1], scale_of((rec.max(0) - rec.min(0)) / 2, rec[-1])
+    one = np.array([1])
+    first = check_orbits(p.vector_field, p.setup, p.data, np.array([v]), y[None], sc[None],
+                         one, max_period=2)
+    assert bool(np.asarray(first.converged)[0])
+    orbit = np.asarray(first.state)[0]
+    tight = SolverSettings(rtol=1e-12, atol=1e-18, max_steps=10**7, solver="dopri5-fused")
+    end = np.asarray(integrate(p.vector_field, jnp.asarray(orbit), args, 0.0, period,
+                               jnp.asarray(period)[None], tight, throw=False).ys[-1])
+    assert np.max(np.abs(end - orbit) / sc) <= 1e-6 * max(1.0, np.max(np.abs(orbit / sc)))
+    again = check_orbits(p.vector_field, p.setup, p.data, np.array([v]), orbit[None],
+                         sc[None], one, max_period=2)
+    assert bool(np.asarray(again.converged)[0]) and int(np.asarray(again.steps)[0]) == 0
+
+
 def test_settle_blocks_verify_on_the_sweeps_program(monkeypatch):
     """Settle blocks (the accelerator's default): a point without an orbit after the
     sweep is run on by the sweep's own program (same chunk shape, so no new program)
     and verified from that record, without the long runs; the same orbit as the long
-    runs find. B1's 620 Hz point at 5000 N (3 time constants of transient leave it too
-    far from its orbit for the first trial)."""
+    runs find. B1's 1262.35 Hz point at 5000 N (of the 256-point B1 sweep: 3 time
+    constants of transient leave it too far from its orbit for the first trial; 620 Hz
+    was such a point until the checks' state-only runs took a quarter of their
+    tolerances, `STATE_TIGHTER`, and is verified at once since)."""
     from bsfs_jax.analysis import _sweep_engines, _verify, bsfs_problem
     from bsfs_jax.params import preset
 
@@ -369,7 +407,7 @@ def test_settle_blocks_verify_on_the_sweeps_program(monkeypatch):
     out = {}
     for settle in (False, True):
         blocks.clear(), chunks.clear()
-        out[settle] = sweep(problem, [620.0], config=cfg, progress=False,
+        out[settle] = sweep(problem, [1262.3529], config=cfg, progress=False,
                             verify=VerifySettings(settle=settle)).verdicts
         assert out[settle]["motion"][0, 0] == "period-1" and out[settle]["verified"][0, 0]
         assert (blocks == []) == settle  # the long runs only without settle blocks
@@ -380,4 +418,4 @@ def test_settle_blocks_verify_on_the_sweeps_program(monkeypatch):
     # The time before the evidence: the long run's block starts where the sweep ended;
     # the settle block's record is its last 16 of 256 periods.
     np.testing.assert_allclose(out[True]["transient"],
-                               out[False]["transient"] + (256 - 16) / 620.0, rtol=1e-9)
+                               out[False]["transient"] + (256 - 16) / 1262.3529, rtol=1e-9)

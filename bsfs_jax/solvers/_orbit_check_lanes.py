@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from ._lanes import integrate_lanes
-from ._orbit_check import CHECK_SETTINGS, OrbitCheck, host_eigvals
+from ._orbit_check import CHECK_SETTINGS, OrbitCheck, host_eigvals, state_settings
 from ._results import RESULTS, result_codes
 
 _OK = int(result_codes(RESULTS.successful))
@@ -136,8 +136,8 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
         z, f, k, ok = c
         go = pending(z, f, k, ok)
         z_try = z - jax.vmap(jax.scipy.linalg.lu_solve)(lu, f)
-        y, st = _run_to(g, jnp.where(go[:, None], z_try, z), sargs, t_end, period, settings,
-                        fast, block, looped)
+        y, st = _run_to(g, jnp.where(go[:, None], z_try, z), sargs, t_end, period,
+                        state_settings(settings), fast, block, looped)
         f_try = jnp.where((st == _OK)[:, None], y - z_try, jnp.nan)
         keep = lambda new, old: jnp.where(go[:, None], new, old)  # noqa: E731
         ok_new = jnp.where(go, jnp.all(jnp.isfinite(f_try), axis=1), ok)
@@ -152,9 +152,10 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     # run, the others after it (a lane stops at its own n T, as `check_orbits` does; the
     # samples past it are undefined and dropped below).
     m = max_period * spp
+    sset = state_settings(settings)  # the state-only runs' tolerances (`STATE_TIGHTER`)
     first, rest, _, st, _ = integrate_lanes(
         g, z, sargs, period / spp, period, n_samples=m - 1, samples_per_period=spp,
-        rtol=settings.rtol, atol=settings.atol, max_steps=settings.max_steps, block=block,
+        rtol=sset.rtol, atol=sset.atol, max_steps=sset.max_steps, block=block,
         fast=fast, lane_samples=jnp.maximum(n * spp - 1, 1), looped=looped)
     ys = jnp.concatenate([first[:, None], rest], axis=1) * scale[:, None, :]
     j = jnp.arange(1, m + 1, dtype=float)
