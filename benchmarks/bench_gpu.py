@@ -50,7 +50,7 @@ def main():
                    help="SweepConfig.kernel_fast for the kernel engine (1 or 0)")
     p.add_argument("--unroll", type=int, default=1,
                    help="SweepConfig.kernel_unroll for the kernel engine")
-    p.add_argument("--looped", type=int, default=0,
+    p.add_argument("--looped", type=int, default=1,
                    help="SweepConfig.kernel_looped for the kernel engine (1 or 0)")
     p.add_argument("--smoke", type=int, default=1, help="run case 1 (1) or not (0)")
     p.add_argument("--kernel-checks", type=int, default=0,

@@ -17,8 +17,9 @@
 # Needs the wheels of h5netcdf and tomli_w (the image lacks both) in .whl/, carried:
 #   echo /.whl/ >> .git/info/exclude
 #   .venv/bin/pip download --no-deps --only-binary=:all: -d .whl h5netcdf==1.8.2 tomli_w==1.2.0
-# Environment: KC="1" runs the kernel-checks case alone; LOOPED=1 runs every kernel with
-# its stages looped (SweepConfig.kernel_looped); B1="240,2048" first times the cold B1
+# Environment: KC="1" runs the kernel-checks case alone; LOOPED=0 runs every kernel with
+# its stages unrolled (SweepConfig.kernel_looped, looped by default); B1="240,2048" first
+# times the cold B1
 # sweep at those point counts. An ATLAS_TIMEOUT_S of 0 skips the atlas.
 # Rows go to $OUT/gpu.jsonl.
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg BSFS_CACHE_DIR=/tmp/bsfs-cache
@@ -31,7 +32,7 @@ nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv,nohead
 if [ -n "${B1:-}" ]; then  # B1="240,2048": the cold B1 sweep at these point counts first
   JAX_LOG_COMPILES=1 timeout 90 python3 benchmarks/bench_gpu.py --out "$OUT" --smoke 0 \
     --points "$B1" --numba-points "" --vmap-points "" --verify-points "" \
-    --looped "${LOOPED:-0}" 2> >(grep -E "XLA compilation|Very slow|rror" | cut -c1-200 \
+    --looped "${LOOPED:-1}" 2> >(grep -E "XLA compilation|Very slow|rror" | cut -c1-200 \
     > "$OUT/compiles_b1.txt")
 fi
 if [ "${1:-150}" != 0 ]; then
@@ -39,7 +40,7 @@ if [ "${1:-150}" != 0 ]; then
     # process; KC="1" runs the kernel case alone)
     JAX_LOG_COMPILES=$kc timeout "${1:-150}" python3 benchmarks/bench_gpu.py --out "$OUT" \
       --smoke 0 --points "" --numba-points "" --vmap-points "" --verify-points 2048 \
-      --budget 100 --kernel-checks $kc --looped "${LOOPED:-0}" 2> >(grep -E "XLA compilation|Very slow|rror" \
+      --budget 100 --kernel-checks $kc --looped "${LOOPED:-1}" 2> >(grep -E "XLA compilation|Very slow|rror" \
       | cut -c1-200 > "$OUT/compiles_kernel_checks_$kc.txt")
     echo "{\"case\": \"verified process\", \"kernel_checks\": $kc, \"rc\": $?}" | tee -a "$OUT/gpu.jsonl"
   done
