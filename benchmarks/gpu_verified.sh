@@ -19,8 +19,7 @@
 #   .venv/bin/pip download --no-deps --only-binary=:all: -d .whl h5netcdf==1.8.2 tomli_w==1.2.0
 # Environment: KC="1" runs the kernel-checks case alone; LOOPED=0 runs every kernel with
 # its stages unrolled (SweepConfig.kernel_looped, looped by default); B1="240,2048" first
-# times the cold B1
-# sweep at those point counts. An ATLAS_TIMEOUT_S of 0 skips the atlas.
+# times the cold B1 sweep at those point counts. An ATLAS_TIMEOUT_S of 0 skips the atlas.
 # Rows go to $OUT/gpu.jsonl.
 export PYTHONUNBUFFERED=1 MPLBACKEND=Agg BSFS_CACHE_DIR=/tmp/bsfs-cache
 python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl || exit 1
