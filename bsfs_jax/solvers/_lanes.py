@@ -113,8 +113,8 @@ def _stages_looped(f, t, y, h, k1, n):
     a = [[_A[i][j] if j < i else 0.0 for i in range(7)] for j in range(6)]
 
     def stage(i, ks):
-        yi = tuple(y[c] + h * sum(_pick(i, a[j]) * ks[j][c] for j in range(6))
-                   for c in range(n))
+        coef = [_pick(i, a[j]) for j in range(6)]  # this stage's row, once for all c
+        yi = tuple(y[c] + h * sum(coef[j] * ks[j][c] for j in range(6)) for c in range(n))
         ki = f(t + _pick(i, _C) * h, yi)
         return tuple(tuple(jnp.where(i == j, ki[c], ks[j][c]) for c in range(n))
                      if j > 0 else ks[j] for j in range(7))

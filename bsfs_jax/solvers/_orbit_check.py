@@ -39,10 +39,15 @@ from ._shooting import Scaled, _Variational
 STATE_TIGHTER = 4.0
 
 
+def tightened(settings: SolverSettings, factor: float) -> SolverSettings:
+    """`settings` with rtol and atol divided by `factor`."""
+    return dataclasses.replace(settings, rtol=settings.rtol / factor,
+                               atol=settings.atol / factor)
+
+
 def state_settings(settings: SolverSettings) -> SolverSettings:
     """The checks' settings for their state-only runs (`STATE_TIGHTER`)."""
-    return dataclasses.replace(settings, rtol=settings.rtol / STATE_TIGHTER,
-                               atol=settings.atol / STATE_TIGHTER)
+    return tightened(settings, STATE_TIGHTER)
 
 
 def host_eigvals(matrices):
@@ -116,9 +121,11 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
     f0, j0 = phi(z0)
     ok0 = jnp.all(jnp.isfinite(f0)) & jnp.all(jnp.isfinite(j0))
 
+    state_run = state_settings(settings)  # the chord steps' and samples' runs
+
     def residual(z):
-        res = integrate(field, z, (args, scale), 0.0, t_end, t_end[None],
-                        state_settings(settings), throw=False)
+        res = integrate(field, z, (args, scale), 0.0, t_end, t_end[None], state_run,
+                        throw=False)
         return res.ys[-1] - z
 
     def cond(c):
@@ -148,8 +155,7 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
     mu = mu[jnp.argsort(-jnp.abs(mu))]
     j = jnp.arange(1, max_period * spp + 1, dtype=float)
     ts = jnp.minimum(j * period / spp, t_end)
-    res = integrate(field, z, (args, scale), 0.0, t_end, ts, state_settings(settings),
-                    throw=False)
+    res = integrate(field, z, (args, scale), 0.0, t_end, ts, state_run, throw=False)
     ys = res.ys * scale[None, :]
     valid = (j <= nf * spp) & (res.result == RESULTS.successful)
     samples = jnp.where(valid[:, None], ys, jnp.nan)

@@ -29,14 +29,13 @@ well inside the checks' Newton tolerance. The field is the problem's `component_
 (`SweepProblem`). Nothing is differentiated through it.
 """
 
-import dataclasses
 import functools
 
 import jax
 import jax.numpy as jnp
 
 from ._lanes import integrate_lanes
-from ._orbit_check import CHECK_SETTINGS, OrbitCheck, host_eigvals, state_settings
+from ._orbit_check import CHECK_SETTINGS, OrbitCheck, host_eigvals, state_settings, tightened
 from ._results import RESULTS, result_codes
 
 _OK = int(result_codes(RESULTS.successful))
@@ -76,11 +75,6 @@ def _tangent(field, d: int):
 _COLUMN_TIGHTER = 4.0
 
 
-def _tighter(settings):
-    return dataclasses.replace(settings, rtol=settings.rtol / _COLUMN_TIGHTER,
-                               atol=settings.atol / _COLUMN_TIGHTER)
-
-
 def _monodromy(g, z0, sargs, t_end, period, settings, fast, block, looped):
     """(Phi^{T_end}(z0), the monodromy matrix (B, d, d), ok (B,)): point i's column j on
     lane i d + j (`_tangent`), the state taken from its column 0's lane."""
@@ -88,7 +82,8 @@ def _monodromy(g, z0, sargs, t_end, period, settings, fast, block, looped):
     rep = lambda a: jnp.repeat(a, d, axis=0)  # noqa: E731 - lane i d + j: point i
     w0 = jnp.concatenate([rep(z0), jnp.tile(jnp.eye(d), (B, 1))], axis=1)
     w, codes = _run_to(_tangent(g, d), w0, jax.tree_util.tree_map(rep, sargs), rep(t_end),
-                       rep(period), _tighter(settings), fast, block, looped)
+                       rep(period), tightened(settings, _COLUMN_TIGHTER), fast, block,
+                       looped)
     w = w.reshape(B, d, 2 * d)
     ok = jnp.all(codes.reshape(B, d) == _OK, axis=1)
     return w[:, 0, :d], jnp.swapaxes(w[:, :, d:], 1, 2), ok
@@ -117,6 +112,7 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     eyes = jnp.broadcast_to(eye, (B, d, d))
     sargs = (args, scale, 1.0 / scale)
     g = _scaled(field)
+    sset = state_settings(settings)  # the state-only runs' tolerances (`STATE_TIGHTER`)
     z0 = y_guess / scale
     z_end, phi, ok0 = _monodromy(g, z0, sargs, t_end, period, settings, fast, block, looped)
     f0 = jnp.where(ok0[:, None], z_end - z0, jnp.nan)
@@ -136,8 +132,8 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
         z, f, k, ok = c
         go = pending(z, f, k, ok)
         z_try = z - jax.vmap(jax.scipy.linalg.lu_solve)(lu, f)
-        y, st = _run_to(g, jnp.where(go[:, None], z_try, z), sargs, t_end, period,
-                        state_settings(settings), fast, block, looped)
+        y, st = _run_to(g, jnp.where(go[:, None], z_try, z), sargs, t_end, period, sset,
+                        fast, block, looped)
         f_try = jnp.where((st == _OK)[:, None], y - z_try, jnp.nan)
         keep = lambda new, old: jnp.where(go[:, None], new, old)  # noqa: E731
         ok_new = jnp.where(go, jnp.all(jnp.isfinite(f_try), axis=1), ok)
@@ -152,7 +148,6 @@ def _check(field, setup, data, values, y_guess, scale, n, tol, *, max_steps, max
     # run, the others after it (a lane stops at its own n T, as `check_orbits` does; the
     # samples past it are undefined and dropped below).
     m = max_period * spp
-    sset = state_settings(settings)  # the state-only runs' tolerances (`STATE_TIGHTER`)
     first, rest, _, st, _ = integrate_lanes(
         g, z, sargs, period / spp, period, n_samples=m - 1, samples_per_period=spp,
         rtol=sset.rtol, atol=sset.atol, max_steps=sset.max_steps, block=block,
