@@ -1,11 +1,17 @@
-"""Run each test file in its own pytest process (`make test`), two files at a time.
+"""Run each test file in its own pytest process (`make test`), two at a time.
 
 One process accumulating every compiled XLA program of the suite grew past 7 GB and once
 crashed (a segmentation fault inside a compiled solve) on the 2-core CI machine; diffrax
 runs its tests file by file for the same reason. Files run `BSFS_TEST_JOBS` at a time
-(default: 2, or 1 on a one-core machine), the longest first, so that the 2-core CI machine
-is kept busy (most of the suite's time is single-threaded XLA compilation). Each file's
-output is printed whole when it ends. Arguments are passed on to pytest.
+(default: 2, or 1 on a one-core machine), so that the 2-core CI machine is kept busy (most
+of the suite's time is single-threaded XLA compilation). Each file's output is printed
+whole when it ends. Arguments are passed on to pytest.
+
+The order: the processes share one compilation cache (conftest.py), so a unit that uses
+many of another's programs waits until that one has finished (`_AFTER`) and loads them
+instead of compiling them beside it; among the units that may start, the one heading the
+longest chain of expected seconds starts first. The notebooks run one process each
+(`_SPLIT`): each waits for the test file that compiles its programs.
 
 The run is recorded in `tests/last_run.json` (per file: the counts of pytest's summary line,
 the seconds, and jax's own seconds of tracing, lowering and XLA compilation with the
@@ -26,25 +32,125 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 RECORD = HERE / "last_run.json"
 
-# Seconds per file on the 2-core machine (two at a time, 2026-11-28), to start the longest
-# first.
-_EXPECTED_S = {"test_notebooks.py": 294, "test_forecast.py": 178, "test_periodic.py": 172,
-               "test_design.py": 153, "test_identification.py": 132, "test_verify.py": 78,
-               "test_lanes.py": 70, "test_branch_points.py": 65, "test_posterior.py": 64,
-               "test_sweep.py": 60, "test_branches.py": 59, "test_first_estimate.py": 57,
-               "test_continuation.py": 49, "test_reproduce.py": 47, "test_simulate.py": 44,
-               "test_atlas.py": 43, "test_offsets.py": 40, "test_fit_solve.py": 40,
-               "test_fused.py": 30, "test_cli.py": 15, "test_physics.py": 13,
-               "test_weak_nonlinearity.py": 11, "test_analysis.py": 10, "test_fuzz.py": 9,
-               "test_frf.py": 8, "test_model.py": 7, "test_figures.py": 4,
-               "test_programs.py": 2, "test_params.py": 2, "test_status.py": 2,
-               "test_records.py": 2, "test_tdms.py": 2, "test_layers.py": 1}
+# Seconds per unit on the 2-core machine (two at a time, Intel Xeon, 2026-11-30), to start
+# the longest chains first.
+_EXPECTED_S = {"test_identification.py": 462, "test_forecast.py": 397, "test_periodic.py": 294,
+               "test_design.py": 237, "test_verify.py": 196, "test_lanes.py": 149,
+               "test_posterior.py": 142, "test_branches.py": 134, "test_first_estimate.py": 117,
+               "test_sweep.py": 115, "test_continuation.py": 108, "test_offsets.py": 106,
+               "test_fit_solve.py": 105, "test_atlas.py": 97, "test_simulate.py": 93,
+               "test_reproduce.py": 85, "test_fused.py": 71, "test_branch_points.py": 67,
+               "test_cli.py": 36, "test_physics.py": 33, "test_fuzz.py": 28,
+               "test_weak_nonlinearity.py": 28, "test_analysis.py": 28, "test_frf.py": 19,
+               "test_model.py": 18, "test_figures.py": 9, "test_records.py": 7,
+               "test_status.py": 6, "test_programs.py": 5, "test_params.py": 4,
+               "test_tdms.py": 4, "test_layers.py": 3,
+               "test_notebooks.py::test_notebook_runs[design_study]": 110,
+               "test_notebooks.py::test_notebook_runs[preload_loss]": 100,
+               "test_notebooks.py::test_notebook_runs[identification]": 30,
+               "test_notebooks.py::test_notebook_runs[reproduction]": 12}
+
+# Files run as one process per test (node ids under the file): each notebook runs in a
+# kernel of its own, and each can then wait for the file whose programs it uses.
+_SPLIT = {"test_notebooks.py": lambda: [
+    f"test_notebook_runs[{nb.stem}]"
+    for nb in sorted((HERE.parent / "notebooks").glob("*.ipynb"))]}
+
+# unit -> the unit it starts after (it loads that one's programs from the shared cache):
+# the notebooks repeat the jobs of the files they follow (the worn drive's identification
+# and forecast; the design metrics and their gradients; the paper test's fit and plan).
+_AFTER = {"test_notebooks.py::test_notebook_runs[preload_loss]": "test_forecast.py",
+          "test_notebooks.py::test_notebook_runs[design_study]": "test_design.py",
+          "test_notebooks.py::test_notebook_runs[identification]": "test_identification.py",
+          "test_notebooks.py::test_notebook_runs[reproduction]": "test_reproduce.py"}
+
+
+def units_of(files) -> list[str]:
+    """The units (a file's path, or `path::node id` for the files of `_SPLIT`) to run."""
+    out = []
+    for f in files:
+        split = _SPLIT.get(Path(f).name)
+        nodes = split() if split else []
+        out += [f"{f}::{n}" for n in nodes] if nodes else [str(f)]
+    return out
+
+
+def _name(unit: str) -> str:
+    """The unit's key in `_EXPECTED_S` and `_AFTER`: the file's name, and its node id."""
+    path, _, node = unit.partition("::")
+    return Path(path).name + (f"::{node}" if node else "")
+
+
+def order(units) -> list[str]:
+    """The units by the expected seconds of the longest chain they head (a unit and what
+    waits for it, `_AFTER`), longest first; ties by name."""
+    names = {_name(u) for u in units}
+    waiting = {}
+    for u, before in _AFTER.items():
+        if u in names and before in names:
+            waiting.setdefault(before, []).append(u)
+
+    def chain(name):
+        return _EXPECTED_S.get(name, 30) + max((chain(w) for w in waiting.get(name, [])),
+                                               default=0)
+
+    return sorted(units, key=lambda u: (-chain(_name(u)), _name(u)))
+
+
+def run_ordered(units, jobs: int, run):
+    """Yield `run(unit)` for every unit as each ends, `jobs` at a time: a unit starts once
+    the unit it follows (`_AFTER`, where that one is run too) has ended, in `order`."""
+    pending = order(units)
+    names = {_name(u) for u in pending}
+    done: set[str] = set()
+    running = {}
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        while pending or running:
+            for u in list(pending):
+                if len(running) >= max(1, jobs):
+                    break
+                before = _AFTER.get(_name(u))
+                if before is None or before not in names or before in done:
+                    pending.remove(u)
+                    running[pool.submit(run, u)] = u
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                done.add(_name(running.pop(fut)))
+                yield fut.result()
+
+
+def merge_rows(rows) -> list[dict]:
+    """One row per file: a split file's units summed (counts, seconds, jax's seconds and
+    executables), its units' own names and seconds under "units"."""
+    merged: dict[str, dict] = {}
+    for r in rows:
+        file, _, node = r["file"].partition("::")
+        if not node:
+            merged[file] = r
+            continue
+        m = merged.setdefault(file, {"file": file, "status": "ok", "exit_code": 0,
+                                     "seconds": 0.0, "units": []})
+        m["units"].append({"node": node, "seconds": r["seconds"], "status": r["status"]})
+        m["seconds"] = round(m["seconds"] + r["seconds"], 1)
+        if r["status"] != "ok":
+            m["status"], m["exit_code"] = r["status"], r["exit_code"]
+        for k, v in r.items():
+            if k in ("passed", "failed", "errors", "skipped", "xfailed", "xpassed",
+                     "deselected", "summary_line_found") and isinstance(v, int | bool):
+                m[k] = (m.get(k, 0) + v) if not isinstance(v, bool) else v
+        if r.get("jax"):
+            jm = m.setdefault("jax", {})
+            for k, v in r["jax"].items():
+                if isinstance(v, int | float):
+                    jm[k] = round(jm.get(k, 0) + v, 2)
+    return sorted(merged.values(), key=lambda r: r["file"])
+
 
 _COUNT = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected)\b")
 _SUMMARY = re.compile(r"^=*\s*(\d+ \w+|no tests ran)\b.* in [\d.]+s")
@@ -146,8 +252,7 @@ def write_record(path: Path, data: dict) -> None:
 def main(argv=None, files=None) -> int:
     """Run `files` (default: every tests/test_*.py), record the run, return the status."""
     extra = list(sys.argv[1:] if argv is None else argv)
-    files = sorted(HERE.glob("test_*.py") if files is None else map(Path, files),
-                   key=lambda p: (-_EXPECTED_S.get(p.name, 30), p.name))
+    files = sorted(HERE.glob("test_*.py") if files is None else map(Path, files))
     env = dict(os.environ)
     env.setdefault("BSFS_TEST_FAST_EXIT", "1")  # conftest.py: no interpreter teardown
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -157,19 +262,19 @@ def main(argv=None, files=None) -> int:
     load_start = _load()
     failed, rows = [], []
     start = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for path, code, output, seconds, stats in pool.map(lambda p: _run(p, extra, env),
-                                                           files):
-            print(output, end="", flush=True)
-            ok = code in (0, 5)  # 5: no tests collected (e.g. all deselected)
-            print(f"== {path.name}: {'ok' if ok else 'FAILED'} ({seconds:.0f} s)", flush=True)
-            if not ok:
-                failed.append(path.name)
-            counts = parse_summary(output)
-            rows.append({"file": path.name, "status": "ok" if ok else "FAILED",
-                         "exit_code": code, "seconds": round(seconds, 1),
-                         **(counts or {"summary_line_found": False}),
-                         **({"jax": stats} if stats else {})})
+    units = units_of(files)
+    for unit, code, output, seconds, stats in run_ordered(units, jobs,
+                                                          lambda u: _run(u, extra, env)):
+        print(output, end="", flush=True)
+        ok = code in (0, 5)  # 5: no tests collected (e.g. all deselected)
+        print(f"== {_name(unit)}: {'ok' if ok else 'FAILED'} ({seconds:.0f} s)", flush=True)
+        if not ok:
+            failed.append(_name(unit))
+        counts = parse_summary(output)
+        rows.append({"file": _name(unit), "status": "ok" if ok else "FAILED",
+                     "exit_code": code, "seconds": round(seconds, 1),
+                     **(counts or {"summary_line_found": False}),
+                     **({"jax": stats} if stats else {})})
     total = time.perf_counter() - start
     record_path = os.environ.get("BSFS_TEST_RECORD", str(RECORD))
     if record_path:
@@ -179,16 +284,16 @@ def main(argv=None, files=None) -> int:
             "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
             "pytest_args": extra, "slow_tests": not _deselects_slow(extra),
             "load_average_at_start": load_start, "machine": _machine(),
-            "files": len(rows), "failed_files": failed,
+            "files": len(files), "processes": len(units), "failed_files": failed,
             "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},
             # summed over the files' processes (two at a time): CPU seconds, not wall
             **_jax_summary(rows),
-            "per_file": sorted(rows, key=lambda r: r["file"])})
+            "per_file": merge_rows(rows)})
         print(f"recorded in {record_path} (`make status` puts it in README's status table)")
     if failed:
         print(f"FAILED files ({len(failed)}): {', '.join(failed)}; total {total:.0f} s")
         return 1
-    print(f"all {len(files)} test files passed; total {total:.0f} s")
+    print(f"all {len(files)} test files passed ({len(units)} processes); total {total:.0f} s")
     return 0
 
 

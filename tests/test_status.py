@@ -11,6 +11,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -190,6 +191,44 @@ def test_run_each_records_the_run(tmp_path, monkeypatch, capsys):
     assert row["file"] == "test_tiny.py" and row["status"] == "FAILED" and row["seconds"] > 0
     block, _ = status.render(ROOT, test_record=rec)  # the generator takes what it wrote
     assert "with pytest arguments `-p no:cacheprovider` (a partial run)" in block
+
+
+def test_run_each_starts_a_unit_after_the_one_whose_programs_it_loads(monkeypatch):
+    """The notebooks run a process each; each starts only after the file it follows has
+    ended (the shared cache then holds its programs), and the longest chain goes first."""
+    monkeypatch.setattr(run_each, "_SPLIT", {"test_nb.py": lambda: ["run[x]", "run[y]"]})
+    units = run_each.units_of([Path("tests/test_a.py"), Path("tests/test_nb.py"),
+                               Path("tests/test_b.py")])
+    assert units == ["tests/test_a.py", "tests/test_nb.py::run[x]", "tests/test_nb.py::run[y]",
+                     "tests/test_b.py"]
+    monkeypatch.setattr(run_each, "_EXPECTED_S", {"test_a.py": 10, "test_b.py": 50,
+                                                  "test_nb.py::run[x]": 45,
+                                                  "test_nb.py::run[y]": 1})
+    monkeypatch.setattr(run_each, "_AFTER", {"test_nb.py::run[x]": "test_a.py",
+                                             "test_nb.py::run[y]": "test_missing.py"})
+    # a's chain (10 + 45) is longer than b's 50; y's predecessor is not run: free to start
+    assert [run_each._name(u) for u in run_each.order(units)] == [
+        "test_a.py", "test_b.py", "test_nb.py::run[x]", "test_nb.py::run[y]"]
+    events = []
+
+    def run(unit):  # three slots: x alone must wait, for a, which takes longest
+        events.append(("start", run_each._name(unit)))
+        time.sleep(0.3 if unit.endswith("test_a.py") else 0.0)
+        return run_each._name(unit)
+
+    for name in run_each.run_ordered(units, 3, run):
+        events.append(("end", name))
+    assert events.index(("start", "test_nb.py::run[x]")) > events.index(("end", "test_a.py"))
+    merged = run_each.merge_rows([
+        {"file": "test_nb.py::run[x]", "status": "ok", "exit_code": 0, "seconds": 2.0,
+         "passed": 1, "failed": 0},
+        {"file": "test_nb.py::run[y]", "status": "FAILED", "exit_code": 1, "seconds": 3.0,
+         "passed": 0, "failed": 1},
+        {"file": "test_a.py", "status": "ok", "exit_code": 0, "seconds": 1.0, "passed": 4}])
+    assert [r["file"] for r in merged] == ["test_a.py", "test_nb.py"]
+    nb = merged[1]
+    assert (nb["passed"], nb["failed"], nb["seconds"], nb["status"]) == (1, 1, 5.0, "FAILED")
+    assert [u["node"] for u in nb["units"]] == ["run[x]", "run[y]"]
 
 
 def test_run_all_check_is_one_line_and_exits_1_on_a_difference(tmp_path, monkeypatch, capsys):
