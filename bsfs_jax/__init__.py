@@ -17,6 +17,18 @@ from typing import TYPE_CHECKING
 # keep equinox's default. Read by equinox at its import: this must come first.
 os.environ.setdefault("EQX_ON_ERROR", "nan")
 
+# XLA's CPU compiler with its earlier fusion emitters (`--xla_cpu_use_fusion_emitters=
+# false`): measured on the 2-core machine, a cold `bsfs continue` compiled in 12.6 s
+# instead of 20.2 s, `sensitivity` 18.1 s instead of 24.7 s, for the same results; the few
+# programs that run long enough for the newer emitters' faster code to pay ask for them
+# themselves (`cached_jit(..., runs_long=True)`). XLA reads XLA_FLAGS when jax starts its
+# backend (a process that has computed with jax already keeps its flags). Name the option
+# in XLA_FLAGS yourself to choose, or set BSFS_XLA_DEFAULTS=0 to leave XLA's defaults.
+_XLA_DEFAULT = "--xla_cpu_use_fusion_emitters=false"
+if (os.environ.get("BSFS_XLA_DEFAULTS", "1") != "0"
+        and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "")):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_XLA_DEFAULT}".strip()
+
 from ._lazy import lazy_names  # noqa: E402 - after the environment variable
 
 if TYPE_CHECKING:

@@ -300,7 +300,11 @@ def test_probe_takes_its_values_from_the_gradient_program(params, frc_100n):
         "frc_peak", params, FRC_NAMES, force_n=100.0, settings=FRC_100N, only=FRC_NAMES,
         gradient_program=True)
     np.testing.assert_allclose(probed.gradient, fd.gradient, rtol=1e-6)
-    assert probed.value == pytest.approx(fd.value, rel=1e-12)
+    # The two programs locate one peak, each to the peak search's tolerance (1e-10,
+    # `design._orbit`); they round differently: 1.1e-12 and 2.3e-12 apart (relative) with
+    # the CPU compiler's earlier fusion emitters, bsfs's default, under 1e-12 with the
+    # newer ones.
+    assert probed.value == pytest.approx(fd.value, rel=1e-10)
 
 
 def test_peak_search_near_a_branch_finds_the_whole_band_peak(params):

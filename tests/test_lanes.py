@@ -11,18 +11,33 @@ import sys
 import textwrap
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
-import numpy as np
-import pytest
+# XLA's own CPU code generation for this file (`bsfs_jax/__init__.py` otherwise turns the
+# CPU compiler's newer fusion emitters off): the kernel runs here through Pallas'
+# interpreter as a stand-in for the GPU kernel, on which XLA's CPU options have no effect,
+# and its comparisons with the fused loop (step counts to a few per mille, the looped
+# stages to rounding) were measured against XLA's default CPU code. Under the other
+# emitters every program rounds differently, and the fused loop's own step count on the
+# 4000 Hz lane moves by 0.5 % (1662 -> 1670 steps), the kernel's the other way (1668 ->
+# 1653). Read at bsfs_jax's import: `make test` runs this file in a process of its own.
+os.environ.setdefault("BSFS_XLA_DEFAULTS", "0")
 
-from bsfs_jax import preset
-from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep
-from bsfs_jax.model import kernel_vector_field, vector_field_components
-from bsfs_jax.solvers import RESULTS, SolverSettings, integrate, integrate_lanes, result_codes
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from bsfs_jax import preset  # noqa: E402
+from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep  # noqa: E402
+from bsfs_jax.model import kernel_vector_field, vector_field_components  # noqa: E402
+from bsfs_jax.solvers import RESULTS, SolverSettings, integrate, integrate_lanes, result_codes  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = dict(rtol=1e-8, atol=1e-12)
+# In one pytest process with other files, an earlier import of bsfs_jax set the flag.
+XLA_DEFAULT_CODE = pytest.mark.skipif(
+    "xla_cpu_use_fusion_emitters=false" in os.environ.get("XLA_FLAGS", ""),
+    reason="measured against XLA's default CPU code: run this file in its own process "
+           "(`make test` does)")
 
 
 @pytest.fixture(scope="module")
@@ -44,6 +59,7 @@ def _fused_point(problem, args, period, t_rec, n_samples, spp, rtol, atol):
     return r1.ys[-1], r2.ys, int(r1.num_steps + r2.num_steps)
 
 
+@XLA_DEFAULT_CODE
 def test_kernel_matches_the_fused_loop_on_the_ball_screw(problem):
     """Five lanes in blocks of 4 (one block padded): the same method and controller as the
     fused loop, so the same step counts to a few per mille and samples within the
@@ -155,6 +171,7 @@ def test_kernel_unrolled_steps_give_the_same_lanes_bit_for_bit():
         np.testing.assert_array_equal(a[keep], b[keep])
 
 
+@XLA_DEFAULT_CODE
 def test_kernel_looped_stages_are_the_unrolled_method_to_rounding(problem):
     """`looped=True` (the step's stages as a loop, the field inlined once; the restart
     takes the last stage, first same as last): on the ball screw the same step counts to

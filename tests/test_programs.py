@@ -214,3 +214,46 @@ def test_prefetch_compiles_only_after_a_foreground_compilation():
     assert started.wait(30.0)
     fut.result(timeout=60.0)
 
+
+
+@bsfs_jax.cached_jit(fast_compile=True, runs_long=True)
+def _poly_long(x, data, power: int):
+    return _poly.__wrapped__(x, data, power)
+
+
+def test_a_long_running_program_gives_the_plain_programs_answers(cache_dir):
+    """`runs_long` (XLA's newer CPU fusion emitters for that program): kept and plain
+    (no compilation cache) alike, the same values as `filter_jit`, one program per static
+    argument."""
+    x, data = jnp.linspace(0.0, 1.0, 5), {"w": jnp.arange(5.0)}
+    want = eqx.filter_jit(_poly.__wrapped__)(x, data, 3)
+    for kept in (True, False):
+        if not kept:
+            _programs._loaded.clear()
+        got = _poly_long(x, data, 3)
+        np.testing.assert_allclose(got["value"], want["value"], rtol=1e-15)
+        np.testing.assert_allclose(got["grad"], want["grad"], rtol=1e-15)
+    plain = _poly_long.plain
+    assert float(plain(x, data, 2)["value"]) == pytest.approx(float(jnp.sum(data["w"] * x**2)))
+
+
+def test_bsfs_turns_the_newer_cpu_fusion_emitters_off_unless_told():
+    """`import bsfs_jax` adds `--xla_cpu_use_fusion_emitters=false` to XLA_FLAGS (shorter
+    compilations) unless XLA_FLAGS names that option or BSFS_XLA_DEFAULTS=0."""
+    import os
+    import subprocess
+    import sys
+
+    def flags(**env):
+        base = {k: v for k, v in os.environ.items()
+                if k not in ("XLA_FLAGS", "BSFS_XLA_DEFAULTS")}
+        code = "import os, bsfs_jax; print(os.environ.get('XLA_FLAGS', '<unset>'))"
+        return subprocess.run([sys.executable, "-c", code], env={**base, **env},
+                              capture_output=True, text=True, check=True).stdout.strip()
+
+    assert flags() == "--xla_cpu_use_fusion_emitters=false"
+    assert flags(XLA_FLAGS="--xla_force_host_platform_device_count=2") == (
+        "--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false")
+    assert flags(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true") == (
+        "--xla_cpu_use_fusion_emitters=true")
+    assert flags(BSFS_XLA_DEFAULTS="0") == "<unset>"

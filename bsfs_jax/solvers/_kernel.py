@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import FAST_COMPILE, cached_jit
+from .._programs import FAST_COMPILE, RUNS_LONG, cached_jit
 from ._branch import HostPoint, as_host
 from ._newton import newton
 from ._orbit import orbit_amplitudes
@@ -137,7 +137,7 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
                              max_iter, amplitude_index, u_pred, tangent,
                              (lu, pivots) if use_chord else None)
 
-    return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
+    return jax.jit(fn, compiler_options={**FAST_COMPILE, **RUNS_LONG})
 
 
 @functools.lru_cache(maxsize=64)
@@ -152,7 +152,7 @@ def _amplitude_program(static_family, vector_field, method, n_periods):
     return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
 
 
-@cached_jit(fast_compile=True)
+@cached_jit(fast_compile=True, runs_long=True)
 def _kept_corrector(family, scale, p_scale, tol, u_pred, tangent, lu, pivots, vector_field,
                     method, n_periods, max_iter, amplitude_index, use_chord):
     """`_correct_core` as a kept program (arrays traced, the rest static): its fields as a
