@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING
 os.environ.setdefault("EQX_ON_ERROR", "nan")
 
 # XLA's CPU compiler with its earlier fusion emitters (`--xla_cpu_use_fusion_emitters=
-# false`): measured on the 2-core machine, a cold `bsfs continue` compiled in 12.6 s
-# instead of 20.2 s, `sensitivity` 18.1 s instead of 24.7 s, for the same results; the few
-# programs that run long enough for the newer emitters' faster code to pay ask for them
-# themselves (`cached_jit(..., runs_long=True)`). XLA reads XLA_FLAGS when jax starts its
+# false`): measured on the 2-core machine, the test suite's XLA seconds 1750 -> 1307 and a
+# cold `bsfs sensitivity` 29.5 -> 24.6 s (BENCHMARKS.md C2), the same results to rounding;
+# the few programs that run long enough for the newer emitters' faster code to pay ask for
+# them themselves (`cached_jit(..., runs_long=True)`). XLA reads XLA_FLAGS when jax starts its
 # backend (a process that has computed with jax already keeps its flags). Name the option
 # in XLA_FLAGS yourself to choose, or set BSFS_XLA_DEFAULTS=0 to leave XLA's defaults.
 _XLA_DEFAULT = "--xla_cpu_use_fusion_emitters=false"

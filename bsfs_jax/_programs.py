@@ -220,41 +220,19 @@ def _caller(fn, static, treedef, leaves, key: str, folder: Path, options=None):
 
 
 
-def _filter_jit_with(fn, options: dict):
-    """`equinox.filter_jit(fn)` whose programs XLA compiles with `options`: the arrays
-    traced, the rest static (closed over)."""
-    @functools.lru_cache(maxsize=32)
-    def program(treedef, static_def, static_leaves):
-        static = jax.tree_util.tree_unflatten(static_def, static_leaves)
-
-        def flat(*leaves):
-            args, kwargs = eqx.combine(jax.tree_util.tree_unflatten(treedef, leaves), static)
-            return fn(*args, **kwargs)
-
-        flat.__name__ = flat.__qualname__ = fn.__name__
-        return jax.jit(flat, compiler_options=options)
-
-    @functools.wraps(fn)
-    def call(*args, **kwargs):
-        dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
-        leaves, treedef = jax.tree_util.tree_flatten(dynamic)
-        static_leaves, static_def = jax.tree_util.tree_flatten(static)
-        return program(treedef, static_def, tuple(static_leaves))(*leaves)
-
-    return call
-
-
 def cached_jit(fn=None, *, fast_compile: bool = False, runs_long: bool = False):
     """`equinox.filter_jit(fn)` whose traced programs are kept across processes (module
     docstring). Arrays are traced, everything else is static, as with `filter_jit`.
     `fast_compile`: XLA's backend optimisation at level 1 (`FAST_COMPILE`) for the kept
-    program; `runs_long`: XLA's newer CPU fusion emitters (`RUNS_LONG`), for the kept
-    program and the plain one. Use as `@cached_jit` or `@cached_jit(fast_compile=True)`."""
+    program; `runs_long`: XLA's newer CPU fusion emitters (`RUNS_LONG`) for the kept
+    program. (A caller that compiles the plain program itself passes the same options to
+    its own jit, as the continuation's `_compiled` does.) Use as `@cached_jit` or
+    `@cached_jit(fast_compile=True)`."""
     if fn is None:
         return functools.partial(cached_jit, fast_compile=fast_compile, runs_long=runs_long)
-    options = {**(FAST_COMPILE if fast_compile else {}), **(RUNS_LONG if runs_long else {})}
-    options = options or None
-    jitted = eqx.filter_jit(fn) if not runs_long else _filter_jit_with(fn, RUNS_LONG)
+    options = {**(FAST_COMPILE if fast_compile else {}),
+               **(RUNS_LONG if runs_long else {})} or None
+    jitted = eqx.filter_jit(fn)
     failed: set[str] = set()
 
     def named() -> bool:

@@ -110,10 +110,11 @@ def run_ordered(units, jobs: int, run):
     names = {_name(u) for u in pending}
     done: set[str] = set()
     running = {}
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+    jobs = max(1, jobs)
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
         while pending or running:
             for u in list(pending):
-                if len(running) >= max(1, jobs):
+                if len(running) >= jobs:
                     break
                 before = _AFTER.get(_name(u))
                 if before is None or before not in names or before in done:
@@ -140,10 +141,11 @@ def merge_rows(rows) -> list[dict]:
         m["seconds"] = round(m["seconds"] + r["seconds"], 1)
         if r["status"] != "ok":
             m["status"], m["exit_code"] = r["status"], r["exit_code"]
-        for k, v in r.items():
-            if k in ("passed", "failed", "errors", "skipped", "xfailed", "xpassed",
-                     "deselected", "summary_line_found") and isinstance(v, int | bool):
-                m[k] = (m.get(k, 0) + v) if not isinstance(v, bool) else v
+        for k in _COUNTS:
+            if k in r:
+                m[k] = m.get(k, 0) + r[k]
+        if r.get("summary_line_found") is False:
+            m["summary_line_found"] = False
         if r.get("jax"):
             jm = m.setdefault("jax", {})
             for k, v in r["jax"].items():
@@ -152,6 +154,8 @@ def merge_rows(rows) -> list[dict]:
     return sorted(merged.values(), key=lambda r: r["file"])
 
 
+# The counts of pytest's summary line that the record keeps.
+_COUNTS = ("passed", "failed", "errors", "skipped", "xfailed", "xpassed", "deselected")
 _COUNT = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected)\b")
 _SUMMARY = re.compile(r"^=*\s*(\d+ \w+|no tests ran)\b.* in [\d.]+s")
 
@@ -278,14 +282,13 @@ def main(argv=None, files=None) -> int:
     total = time.perf_counter() - start
     record_path = os.environ.get("BSFS_TEST_RECORD", str(RECORD))
     if record_path:
-        keys = ("passed", "failed", "errors", "skipped", "xfailed", "xpassed", "deselected")
-        totals = {k: sum(r.get(k, 0) for r in rows) for k in keys}
+        totals = {k: sum(r.get(k, 0) for r in rows) for k in _COUNTS}
         write_record(Path(record_path), {
             "date_utc": date, "seconds": round(total, 1), "jobs": jobs,
             "pytest_args": extra, "slow_tests": not _deselects_slow(extra),
             "load_average_at_start": load_start, "machine": _machine(),
             "files": len(files), "processes": len(units), "failed_files": failed,
-            "totals": {k: v for k, v in totals.items() if v or k in keys[:4]},
+            "totals": {k: v for k, v in totals.items() if v or k in _COUNTS[:4]},
             # summed over the files' processes (two at a time): CPU seconds, not wall
             **_jax_summary(rows),
             "per_file": merge_rows(rows)})
