@@ -345,15 +345,49 @@ def from_hessian(name, unit, value, grad, hess, ident: Identified, *, scale=1.0,
                     ident, scale, method, quadratic, dict(extra or {}), approximate, exact)
 
 
-def draw_batches(ident: Identified, round_to: int = DRAW_BATCH) -> list:
+def draw_batches(ident: Identified, round_to: int = DRAW_BATCH, parts: int = 1) -> list:
     """The identification's draws in batches of at most `DRAW_BATCH` rows for the
     vmapped programs that push them through the model, the last padded with the estimate
     to a multiple of `round_to`: `DRAW_BATCH` for cheap lanes (one program for any count
-    of draws), a small number for costly ones (200 refits run as 200 lanes, not 256)."""
+    of draws), a small number for costly ones (200 refits run as 200 lanes, not 256).
+    `parts`: at least this many batches (of equal size), for `run_batches`' threads."""
     n = len(ident.draws)
-    batch = min(DRAW_BATCH, -(-n // round_to) * round_to)
+    per_part = -(-n // parts)
+    batch = min(DRAW_BATCH, -(-per_part // round_to) * round_to)
     thetas = np.concatenate([ident.draws, np.repeat(ident.theta[None], -n % batch, axis=0)])
     return [thetas[i:i + batch] for i in range(0, len(thetas), batch)]
+
+
+def lane_threads() -> int:
+    """How many threads `run_batches` uses (and how many batches costly lanes are cut
+    into): on the CPU its cores, at most 4 (XLA runs one such program on one core); on an
+    accelerator 1 (there the lanes of one batch already run in parallel)."""
+    import os
+
+    import jax
+
+    if jax.default_backend() != "cpu":
+        return 1
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+def run_batches(fn, calls: list) -> list:
+    """[fn(*args) for args in calls] as numpy trees, the calls on `lane_threads()`
+    threads (XLA runs a compiled program without Python's lock). The FRC's three points
+    followed by shooting to 200 refits and 10 central steps on the 2-core machine: 18.4 s
+    as one batch, 8.5 s as two on two threads."""
+    import jax
+
+    def one(args):
+        return jax.tree_util.tree_map(np.asarray, fn(*args))
+
+    workers = min(len(calls), lane_threads())
+    if workers <= 1:
+        return [one(args) for args in calls]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(one, calls))
 
 
 def value_jac_hess(fn, x):
@@ -369,12 +403,17 @@ def value_jac_hess(fn, x):
     return value, jac, hess
 
 
-def locate_peak(params, force, start, stop, settings):
-    """(hint, branch) of the FRC; a band without an interior peak is refused."""
-    from bsfs_jax.design import locate_frc_peak
+def locate_peak(params, force, start, stop, settings, near=None):
+    """(hint, branch) of the FRC; a band without an interior peak is refused. `near`: the
+    branch at a nearby force or parameters, whose peak's stretch is continued instead of
+    the band (`design.locate_frc_peak_near`; the band where that stretch holds no peak)."""
+    from bsfs_jax.design import locate_frc_peak, locate_frc_peak_near
     from bsfs_jax.solvers import SolverError
 
     try:
+        if near is not None:
+            return locate_frc_peak_near(params, force, settings, near, start_hz=start,
+                                        stop_hz=stop)
         return locate_frc_peak(params, force, settings, start_hz=start, stop_hz=stop)
     except SolverError as exc:
         raise ForecastError(f"no resonance peak between {start:g} and {stop:g} Hz at "

@@ -32,7 +32,7 @@ import numpy as np
 
 import bsfs_jax
 
-from ._forecast import Identified, draw_batches
+from ._forecast import Identified, draw_batches, lane_threads, run_batches
 
 BATCH_ROUND = 8  # the last batch of draws padded to a multiple of this (`draw_batches`)
 #: The peak frequency's central differences step +-CENTRAL_SD standard deviations of each
@@ -92,7 +92,7 @@ def _calls(ident: Identified, force: float, hints, peak, central: bool = False) 
     rows = [central_steps(ident)] if central else []
     rows += [] if ident.draws is None else [ident.draws]
     batches = [np.asarray(ident.theta)[None]] if not rows else draw_batches(
-        dataclasses.replace(ident, draws=np.concatenate(rows)), BATCH_ROUND)
+        dataclasses.replace(ident, draws=np.concatenate(rows)), BATCH_ROUND, lane_threads())
     return [(ident.coordinates, theta, jnp.asarray(thetas, float), force, stacked, weights)
             for thetas in batches]
 
@@ -104,10 +104,14 @@ def points_at_draws(ident: Identified, force: float, hints, peak, calls=None,
     could not be followed. `calls`: `_calls`'s arguments, where already laid out, with
     `skip` lanes before the draws; `first`: the first call's result, where computed."""
     calls = _calls(ident, force, hints, peak) if calls is None else calls
-    first = _points_at_draws(*calls[0]) if first is None else first
-    out = np.concatenate([np.asarray(first[0])] + [np.asarray(_points_at_draws(*args)[0])
-                                                   for args in calls[1:]],
-                         axis=1)[:, skip:skip + len(ident.draws)]
+    done = [] if first is None else [first]
+    return _followed(done + run_batches(_points_at_draws, calls[len(done):]), skip,
+                     len(ident.draws))
+
+
+def _followed(results: list, skip: int, n: int) -> np.ndarray:
+    """`points_at_draws`' array from `_points_at_draws`' results for every batch."""
+    out = np.concatenate([np.asarray(r[0]) for r in results], axis=1)[:, skip:skip + n]
     return np.where(out[:, :, 2:] > 0.5, out[:, :, :2], np.nan)
 
 
@@ -138,12 +142,14 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
     central = central and True in peak
     calls = _calls(ident, force, hints, peak, central)
     _points_at_draws.prefetch_now(*calls[0])
-    first = functools.cache(lambda: _points_at_draws(*calls[0]))
+    # every batch at once, on `run_batches`' threads (the gradients are the first's)
+    results = functools.cache(lambda: run_batches(_points_at_draws, calls))
     p = len(ident.theta)
     skip = 2 * p if central else 0
 
     def gradients():
-        lanes, grads = (np.asarray(x) for x in first())
+        lanes = np.concatenate([r[0] for r in results()], axis=1)
+        grads = results()[0][1]
         out = {name: grads[k, c] for name, (k, c) in where.items()}
         if central:
             k = peak.index(True)
@@ -155,7 +161,6 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
 
     if ident.draws is None:
         return {}, gradients
-    batch = functools.cache(lambda: points_at_draws(ident, force, hints, peak, calls,
-                                                    first(), skip))
+    batch = functools.cache(lambda: _followed(results(), skip, len(ident.draws)))
     exact = {name: (lambda k=k, c=c: batch()[k, :, c]) for name, (k, c) in where.items()}
     return exact, gradients

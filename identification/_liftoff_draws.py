@@ -19,7 +19,7 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.machine import JOINTS
 
-from ._forecast import draw_batches
+from ._forecast import draw_batches, lane_threads, run_batches
 from ._forecast_frc_draws import BATCH_ROUND
 
 FIRST_STEP = 1e-3  # the secant's second force: the first times (1 + FIRST_STEP)
@@ -108,14 +108,15 @@ def _liftoff_lanes(coords, theta, thetas, f_star, grad, hint, joint):
 
 def _calls(ident, hint, f_star, grad, joint) -> list:
     """`_liftoff_lanes`' arguments for each batch of the draws (`draw_batches`, padded
-    as the FRC points' are: each lane costs its follows)."""
+    and cut for `run_batches`' threads as the FRC points' are: each lane costs its
+    follows)."""
     import jax.numpy as jnp
 
     head = (ident.coordinates, jnp.asarray(ident.theta, float))
     tail = (jnp.asarray(f_star, float), jnp.asarray(grad, float), hint,
             jnp.asarray(joint, jnp.int32))
     return [(*head, jnp.asarray(thetas, float), *tail)
-            for thetas in draw_batches(ident, BATCH_ROUND)]
+            for thetas in draw_batches(ident, BATCH_ROUND, lane_threads())]
 
 
 def prefetch_liftoff(ident, hint, joint: int) -> None:
@@ -132,6 +133,6 @@ def liftoff_at_draws(ident, hint, f_star: float, grad, joint: int, *,
     """(n,): joint `JOINTS[joint]`'s lift-off force [N] on the nonlinear orbits at each of
     the identification's n draws; NaN where the model failed there. `details`: the
     program's (n, 4) columns instead (`_liftoff_lanes`)."""
-    out = np.concatenate([np.asarray(_liftoff_lanes(*args)) for args in _calls(
-        ident, hint, f_star, grad, joint)])[:len(ident.draws)]
+    out = np.concatenate(run_batches(_liftoff_lanes, _calls(ident, hint, f_star, grad,
+                                                            joint)))[:len(ident.draws)]
     return out if details else np.where(out[:, 1] > 0.5, out[:, 0], np.nan)

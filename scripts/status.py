@@ -736,7 +736,7 @@ def _cold(src: Sources, v: Values):
 
     put("ab.date", lambda: date10(src.json(a).raw()["date"]), a)
     for name, key in (("map", "map"), ("continue", "cont"), ("sweep", "sweep"),
-                      ("sensitivity", "sens")):
+                      ("sensitivity", "sens"), ("predict", "pred")):
         for which in ("head", "base"):
             for i, kind in enumerate(("cold", "warm")):
                 put(f"ab.{key}_{which}_{kind}",

@@ -55,6 +55,7 @@ if TYPE_CHECKING:
     from ._orbit import frc_peak_value as frc_peak_value
     from ._orbit import frc_point_values as frc_point_values
     from ._orbit import locate_frc_peak as locate_frc_peak
+    from ._orbit import locate_frc_peak_near as locate_frc_peak_near
     from ._orbit import opens_joint as opens_joint
     from ._orbit import peak_hint_layout as peak_hint_layout
     from ._orbit import peak_orbit_samples as peak_orbit_samples
@@ -104,6 +105,7 @@ _LAZY = {
     "frc_peak_value": "._orbit",
     "frc_point_values": "._orbit",
     "locate_frc_peak": "._orbit",
+    "locate_frc_peak_near": "._orbit",
     "opens_joint": "._orbit",
     "peak_orbit_samples": "._orbit",
     "periodic_orbit": "._orbit",

@@ -236,7 +236,7 @@ def locate_frc_peak(params, force_n, settings: OrbitSettings, *, start_hz=None,
 
 
 def locate_frc_peak_near(params, force_n, settings: OrbitSettings, near, *, back: int = 6,
-                         ahead: int = 6):
+                         ahead: int = 6, start_hz=None, stop_hz=None):
     """(PeakHint, Branch): the FRC peak of `params`, searched by a short continuation on
     the stretch of `near` (the FRC branch of nearby parameters, e.g. the nominal drive's)
     around its peak, instead of over the whole band; what a finite-difference quotient of
@@ -247,16 +247,20 @@ def locate_frc_peak_near(params, force_n, settings: OrbitSettings, near, *, back
     ahead of the peak (there the orbit is the only one of its branch), and ends `ahead`
     points past the peak, before the next fold. It is a search of its own: only its first
     guess comes from `near`. Falls back to `locate_frc_peak` over the whole band when the
-    stretch holds no peak (the parameters moved it further than a few points)."""
+    stretch holds no peak (the parameters moved it further than a few points): over
+    `settings.frc_band` x f1, or `start_hz`-`stop_hz` where given."""
+    def whole_band():
+        return locate_frc_peak(params, force_n, settings, start_hz=start_hz, stop_hz=stop_hz)
+
     pk = near.peak
     if pk is None:
-        return locate_frc_peak(params, force_n, settings)
+        return whole_band()
     folds = [b.index for b in near.bifurcations if b.kind == "fold"]
     i_a = max([pk.index - back, 0, *(i + 1 for i in folds if i < pk.index)])
     i_b = min([pk.index + 1 + ahead, len(near) - 1, *(i for i in folds if i > pk.index)])
     p_a, p_b = float(near.p[i_a]), float(near.p[i_b])
     if i_b <= i_a or p_a == p_b:
-        return locate_frc_peak(params, force_n, settings)
+        return whole_band()
     # The settings' method (a caller that differences fixes it to `near`'s discretisation);
     # under "auto", the one `near` ended with.
     method = near.method if settings.frc_method == "auto" else settings.frc_orbit_method()
@@ -270,9 +274,9 @@ def locate_frc_peak_near(params, force_n, settings: OrbitSettings, near, *, back
                                  scale=near.scale, normalise=False, tol=1e-10,
                                  p_scale=near.info["p_scale"])
     except SolverError:
-        return locate_frc_peak(params, force_n, settings)
+        return whole_band()
     if branch.peak is None or branch.info["stop_reason"] != "left the parameter interval":
-        return locate_frc_peak(params, force_n, settings)
+        return whole_band()
     return point_hint(branch.peak.point, branch), branch
 
 
