@@ -511,3 +511,31 @@ def test_frc_continued_by_shooting_where_the_working_force_opens_a_joint():
     assert frc_settings(auto, 50.0, [61.5, 97.2]).frc_method == "auto"
     hb = OrbitSettings(frc_method="hb")
     assert frc_settings(hb, 100.0, [61.5, 97.2]).frc_method == "hb"
+
+
+def test_costly_lanes_are_cut_into_one_equal_batch_per_thread(monkeypatch):
+    """`draw_batches(parts=)` cuts the draws into equal batches (padded with the estimate
+    to a multiple of `round_to`), every draw once and in order; `run_batches` returns each
+    call's result in the calls' order, on threads or not."""
+    import types
+
+    from identification import _forecast as fc
+
+    theta = np.full(3, -1.0)
+    for n, parts, size, count in ((200, 2, 104, 2), (216, 2, 112, 2), (200, 1, 200, 1),
+                                  (10, 2, 8, 2), (5, 4, 8, 1)):
+        draws = np.arange(3.0 * n).reshape(n, 3)
+        batches = fc.draw_batches(types.SimpleNamespace(draws=draws, theta=theta), 8, parts)
+        assert [len(b) for b in batches] == [size] * count, (n, parts)
+        rows = np.concatenate(batches)
+        np.testing.assert_array_equal(rows[:n], draws)
+        np.testing.assert_array_equal(rows[n:], np.broadcast_to(theta, rows[n:].shape))
+    def fn(a, b):
+        return {"sum": np.asarray(a + b), "arg": (a, b)}
+
+    calls = [(k, 10.0 * k) for k in range(5)]
+    for threads in (1, 2):
+        monkeypatch.setattr(fc, "lane_threads", lambda t=threads: t)
+        out = fc.run_batches(fn, calls)
+        assert [float(o["sum"]) for o in out] == [11.0 * k for k in range(5)]
+        assert [o["arg"] for o in out] == [tuple(map(np.asarray, c)) for c in calls]
