@@ -12,7 +12,7 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.design import OPENS_FRACTION  # the threshold of design.opens_joint
 
-from ._forecast import ForecastError, Identified, Quantity, locate_peak
+from ._forecast import ForecastError, Identified, Quantity, locate_peak, on_threads
 from ._forecast_frc_checks import from_draws, from_probes, probe_steps
 from ._forecast_frc_draws import frc_points
 from ._forecast_modal import _modal
@@ -126,9 +126,7 @@ def _probe_branches(ident, steps, jobs, force, sub, settings):
         except ForecastError:
             return None
 
-    workers = max(1, min(len(jobs), os.cpu_count() or 1))
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(one, jobs))
+    return on_threads(one, jobs, os.cpu_count() or 1)
 
 
 def _read(name, branch):

@@ -214,12 +214,10 @@ def search_on_orbits(ident, theta, joint: str, f0: float, f1: float, start: floa
                              frc_harmonics=LIFTOFF_HARMONICS)
     p = ident.params_at(theta)
 
-    near = []  # the branches located so far
+    near = [None]  # the branch located at the previous force
 
     def m(force):
-        hint, branch = locate_peak(p, force, start, stop, settings,
-                                   near[-1] if near else None)
-        near.append(branch)
+        hint, near[0] = locate_peak(p, force, start, stop, settings, near[0])
         (value, (g_theta, g_f)) = min_deformation(ident.coordinates, theta, force, hint,
                                                   joint)
         return float(value), np.asarray(g_theta), float(g_f), hint
