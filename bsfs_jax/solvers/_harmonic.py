@@ -45,6 +45,7 @@ import numpy as np
 
 from . import _harmonic_second as second
 from ._aft_layout import aft_jacobian_layout, chained_layout, derivative_blocks
+from ._half_range import series_half_range
 from ._method import AbstractOrbitMethod
 from ._results import RESULTS
 from ._shooting import SHOOTING_SETTINGS, Scaled, flow
@@ -328,6 +329,18 @@ class HarmonicBalance(AbstractOrbitMethod):
         n = 8 * self.n_samples
         ts = n_periods * period * jnp.arange(n) / n
         return ts, self._to_time(z, d, n) * scale[None, :]
+
+    def amplitudes(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
+        """Half peak-to-peak of every component, from the H harmonics themselves
+        (`series_half_range`), each extreme started at the best of the `samples` grid's
+        points: the samples' interpolant is the same series (its harmonics above H are
+        zero), so this is the default's value at a fifteenth of the cost (32 harmonics)."""
+        z = self._full(z, period, n_periods, scale)
+        d = scale.shape[0]
+        c0, a, b = self._unpack(z, d)
+        wc = jnp.concatenate([c0[None].astype(complex), a - 1j * b]) * scale[None, :]
+        ys = self._to_time(z, d, 8 * self.n_samples) * scale[None, :]
+        return series_half_range(wc, ys)
 
     def trajectory(self, vector_field, z, args, period, n_periods, scale, ts,
                    ode_adjoint=None):

@@ -12,6 +12,8 @@ import abc
 
 import equinox as eqx
 
+from ._half_range import fourier_half_range
+
 
 class AbstractOrbitMethod(eqx.Module):
     """A discretisation of a periodic orbit of period n T: its unknowns z (scaled by
@@ -57,6 +59,13 @@ class AbstractOrbitMethod(eqx.Module):
     @abc.abstractmethod
     def samples(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
         """(ts, ys): the orbit on a uniform grid over [0, n T)."""
+
+    def amplitudes(self, vector_field, z, args, period, n_periods, scale, ode_adjoint=None):
+        """Half peak-to-peak of every state component over the orbit (system units): by
+        default from the trigonometric interpolant of `samples` (extremes polished by
+        Newton's method, `fourier_half_range`)."""
+        _, ys = self.samples(vector_field, z, args, period, n_periods, scale, ode_adjoint)
+        return fourier_half_range(ys)
 
     @abc.abstractmethod
     def trajectory(self, vector_field, z, args, period, n_periods, scale, ts,

@@ -84,45 +84,9 @@ def _sorted_eigvals(matrix):
     return mu[jnp.argsort(-jnp.abs(mu))]
 
 
-def fourier_half_range(ys, newton_steps: int = 4):
-    """Half of (max - min) per component of uniform samples `ys` (K, d) over one period.
-
-    The samples are interpolated by their trigonometric polynomial (FFT); each extreme is
-    started at the best sample and polished by Newton's method on x'(t) = 0 of the
-    interpolant. The value is then exact to the interpolation error, and its derivative
-    with respect to parameters is the derivative of x at the extreme (x' = 0 there), not
-    that of a sample: a phase change does not leak into the amplitude's gradient.
-    """
-    n = ys.shape[0]
-    c = jnp.fft.rfft(ys, axis=0) / n  # (n // 2 + 1, d)
-    k = jnp.arange(c.shape[0], dtype=float)[:, None]
-    weight = jnp.where((k == 0) | (2 * k == n), 1.0, 2.0)
-    wc = weight * c
-
-    def series(theta, order):  # theta (2, d): the maxima's and the minima's phases
-        e = jnp.exp(1j * k[None] * theta[:, None, :])
-        return jnp.real(jnp.sum(wc[None] * (1j * k[None]) ** order * e, axis=1))
-
-    sign = jnp.array([1.0, -1.0])[:, None]
-    theta = 2.0 * jnp.pi * jnp.argmax(sign[:, None, :] * ys[None], axis=1) / n
-
-    def polish(_, theta):  # one Newton step on x'(theta) = 0 for both extremes
-        d1, d2 = series(theta, 1), series(theta, 2)
-        ok = sign * d2 < 0.0
-        step = jnp.where(ok, d1 / jnp.where(ok, d2, 1.0), 0.0)
-        return theta - jnp.clip(step, -jnp.pi / n, jnp.pi / n)
-
-    # A loop, not Python-unrolled: the program holds the series once.
-    theta = jax.lax.fori_loop(0, newton_steps, polish, theta)
-    extremes = series(theta, 0)
-    return 0.5 * (extremes[0] - extremes[1])
-
-
 def orbit_amplitudes(method, vector_field, z, args, period, n_periods, scale, ode_adjoint):
-    """Half peak-to-peak of each component over the orbit (`fourier_half_range` of the
-    method's uniform samples)."""
-    _, ys = method.samples(vector_field, z, args, period, n_periods, scale, ode_adjoint)
-    return fourier_half_range(ys)
+    """Half peak-to-peak of each component over the orbit (the method's `amplitudes`)."""
+    return method.amplitudes(vector_field, z, args, period, n_periods, scale, ode_adjoint)
 
 
 class _Residual(eqx.Module):
