@@ -74,6 +74,7 @@ class HarmonicBalance(AbstractOrbitMethod):
     name = "harmonic balance"
     uses_chord = True  # a residual costs far less than a Jacobian + LU: chord first
     assembled_jacobian = True  # from the AFT of the field's Jacobian
+    runs_long = False  # FFTs and an LU: the earlier fusion emitters (compile in half)
 
     def __check_init__(self):
         if int(self.harmonics) < 1:

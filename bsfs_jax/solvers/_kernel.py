@@ -137,7 +137,7 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
                              max_iter, amplitude_index, u_pred, tangent,
                              (lu, pivots) if use_chord else None)
 
-    return jax.jit(fn, compiler_options={**FAST_COMPILE, **RUNS_LONG})
+    return jax.jit(fn, compiler_options=_options(method))
 
 
 @functools.lru_cache(maxsize=64)
@@ -152,15 +152,46 @@ def _amplitude_program(static_family, vector_field, method, n_periods):
     return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
 
 
-@cached_jit(fast_compile=True, runs_long=True)
-def _kept_corrector(family, scale, p_scale, tol, u_pred, tangent, lu, pivots, vector_field,
-                    method, n_periods, max_iter, amplitude_index, use_chord):
-    """`_correct_core` as a kept program (arrays traced, the rest static): its fields as a
-    tuple of arrays (what `jax.export` writes)."""
+def _options(method) -> dict:
+    """XLA's options for the corrector of `method`: backend level 1, and the CPU's newer
+    fusion emitters where the method says its corrector runs long (`runs_long`)."""
+    return {**FAST_COMPILE, **(RUNS_LONG if method.runs_long else {})}
+
+
+def _corrector_fields(family, scale, p_scale, tol, u_pred, tangent, lu, pivots,
+                      vector_field, method, n_periods, max_iter, amplitude_index, use_chord):
     pt = _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol,
                        max_iter, amplitude_index, u_pred, tangent,
                        (lu, pivots) if use_chord else None)
     return tuple(getattr(pt, f.name) for f in dataclasses.fields(pt))
+
+
+@cached_jit(fast_compile=True, runs_long=True)
+def _kept_corrector(family, scale, p_scale, tol, u_pred, tangent, lu, pivots, vector_field,
+                    method, n_periods, max_iter, amplitude_index, use_chord):
+    """`_correct_core` as a kept program (arrays traced, the rest static): its fields as a
+    tuple of arrays (what `jax.export` writes). For a method whose corrector runs long
+    (shooting: ODE solves in every call), with XLA's newer CPU fusion emitters."""
+    return _corrector_fields(family, scale, p_scale, tol, u_pred, tangent, lu, pivots,
+                             vector_field, method, n_periods, max_iter, amplitude_index,
+                             use_chord)
+
+
+@cached_jit(fast_compile=True)
+def _kept_corrector_short(family, scale, p_scale, tol, u_pred, tangent, lu, pivots,
+                          vector_field, method, n_periods, max_iter, amplitude_index,
+                          use_chord):
+    """`_kept_corrector` with XLA's earlier CPU fusion emitters (harmonic balance: FFTs and
+    an LU, no ODE loop): at 64 harmonics on the ball screw it compiles in 2.2 s instead of
+    4.2 s, and its calls took as long (1.5-2.2 ms at 32 harmonics, 5.0-6.7 ms at 64 either
+    way, within the machine's noise)."""
+    return _corrector_fields(family, scale, p_scale, tol, u_pred, tangent, lu, pivots,
+                             vector_field, method, n_periods, max_iter, amplitude_index,
+                             use_chord)
+
+
+def _kept_for(method):
+    return _kept_corrector if method.runs_long else _kept_corrector_short
 
 
 def _corrector_call(family, vector_field, method, n_periods, max_iter, amplitude_index,
@@ -171,7 +202,7 @@ def _corrector_call(family, vector_field, method, n_periods, max_iter, amplitude
     the program is exported)."""
     statics = (vector_field, method, int(n_periods), int(max_iter), int(amplitude_index),
                bool(use_chord))
-    kept = _kept_corrector.bind(family, *example, *statics)
+    kept = _kept_for(method).bind(family, *example, *statics)
     if kept is not None:
         leaves = jax.tree_util.tree_leaves(eqx.filter(family, eqx.is_array))
         return (lambda *xs: CorrectedPoint(*kept(*leaves, *xs))), True
@@ -224,9 +255,9 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
                    bool(method.uses_chord))
         example = (*head, *no_chord(n, committed=True))
         dyn, static = eqx.partition(fam, eqx.is_array)
-        if _kept_corrector.keeps(fam, *example, *statics):
+        if _kept_for(method).keeps(fam, *example, *statics):
             # The kept program's own prefetch (queued next; its `bind` later waits for it).
-            _kept_corrector.prefetch_now(fam, *example, *statics)
+            _kept_for(method).prefetch_now(fam, *example, *statics)
         else:
             compile_in_background(_compiled(static, *statics).lower(dyn, *head,
                                                                     *no_chord(n)))

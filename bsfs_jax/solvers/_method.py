@@ -21,14 +21,17 @@ class AbstractOrbitMethod(eqx.Module):
 
     Class attributes: `name` (for messages and reports), `uses_chord` (whether the
     continuation corrector tries chord iterations with a neighbour's Newton matrix first:
-    worth it where a residual costs far less than a Jacobian) and `assembled_jacobian`
+    worth it where a residual costs far less than a Jacobian), `assembled_jacobian`
     (whether `residual_and_jacobian` assembles dR/dz more cheaply than forward mode through
-    the residual; then the corrector uses it).
+    the residual; then the corrector uses it) and `runs_long` (whether the corrector's
+    program is compiled with XLA's newer CPU fusion emitters, which take about twice as
+    long to compile and pay only where each call runs long loops: ODE solves).
     """
 
     name: eqx.AbstractClassVar[str]
     uses_chord: eqx.AbstractClassVar[bool]
     assembled_jacobian: eqx.AbstractClassVar[bool]
+    runs_long: eqx.AbstractClassVar[bool]
 
     @abc.abstractmethod
     def init(self, vector_field, y_guess, args, period, n_periods, scale):

@@ -122,6 +122,7 @@ class Shooting(AbstractOrbitMethod):
     name = "shooting"
     uses_chord = False  # the Jacobian costs ~ one period map: plain Newton is as cheap
     assembled_jacobian = False  # forward mode through the flow (`residual_and_jacobian`)
+    runs_long = True  # ODE solves in every corrector call: the newer fusion emitters
 
     def __check_init__(self):
         if int(self.segments) < 1:
