@@ -451,3 +451,29 @@ def test_amplitudes_at_the_events_only(duffing_frc):
     with pytest.raises(ValueError, match="amplitudes must be True, False or 'events'"):
         continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
                         **dict(kw, amplitudes="all"))
+
+
+def test_a_brief_continuation_compiles_for_quick_compilation(duffing_frc):
+    """`brief=True` (a few dozen corrector calls: `bsfs continue`'s cross-check) compiles
+    shooting's corrector without XLA's newer CPU fusion emitters, which every other
+    shooting corrector gets (`runs_long`) and harmonic balance's never does; it is a
+    program of its own (traced anew) and follows the same branch to rounding."""
+    from bsfs_jax._programs import RUNS_LONG
+    from bsfs_jax.solvers import Shooting
+    from bsfs_jax.solvers._kernel import _options
+
+    emitters = next(iter(RUNS_LONG))
+    assert _options(Shooting()).get(emitters) is True
+    assert emitters not in _options(Shooting(), brief=True)
+    assert emitters not in _options(HarmonicBalance()) | _options(HarmonicBalance(), True)
+    family = frequency_family(**HARDENING)
+    branch = continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                             vector_field=duffing, scale=jnp.ones(2), normalise=False,
+                             p_scale=1.0, amplitude_index=0, brief=True)
+    assert branch.info["corrector_traces"] >= 1
+    assert len(branch.p) == len(duffing_frc.p)
+    np.testing.assert_allclose(branch.p, duffing_frc.p, rtol=1e-10)
+    np.testing.assert_allclose(branch.amplitudes, duffing_frc.amplitudes, rtol=1e-8)
+    folds = [b.p for b in branch.bifurcations if b.kind == "fold"]
+    assert folds == pytest.approx([b.p for b in duffing_frc.bifurcations
+                                   if b.kind == "fold"], rel=1e-10)

@@ -128,7 +128,8 @@ def _cross_check_folds(family, branch, method, settings, args):
         try:
             local = continue_orbits(family, branch.states[i], p0, p_far, method=method,
                                     ds=0.02, max_points=60, amplitudes=False,
-                                    find_peaks=False, p_scale=abs(p_far - p0) * 10)
+                                    find_peaks=False, p_scale=abs(p_far - p0) * 10,
+                                    brief=True)
             folds = [f for f in local.bifurcations if f.kind == "fold"]
         except Exception as exc:  # noqa: BLE001 - reported, not fatal
             checks.append({"frequency_hz": b.p, "other_method": method.name,
@@ -186,13 +187,14 @@ def run_continue(args) -> int:
     dof = _DOFS[args.dof]
     started = time.perf_counter()
     family = bsfs_family(params, args.force)
-    # Shooting's corrector (the folds' cross-check, or auto's fallback) is traced and
-    # compiled on the second core meanwhile: from here (its layout needs only the state's
-    # size, six), beside the transient's and harmonic balance's own compilations.
+    # Shooting's corrector for the folds' cross-check (amplitudes left out, `brief`: a few
+    # dozen calls, so XLA's quicker compilation) is traced and compiled on the second core
+    # meanwhile: from here (its layout needs only the state's size, six), beside the
+    # transient's and harmonic balance's own compilations.
     pending = None if args.method == "shooting" or (
         args.method == "hb" and args.no_cross_check) else prefetch_corrector(
             family, family.vector_field, shooting, np.zeros(6), args.start,
-            amplitudes=False)
+            amplitudes=False, brief=True)
     print(f"transient of {args.transient_periods} periods at {args.start:g} Hz, "
           f"{args.force:g} N ...", flush=True)
     # Only a start for the corrector: the forward-only fused loop compiles in about half

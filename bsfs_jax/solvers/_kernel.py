@@ -127,7 +127,7 @@ def prepare_outside(family):
 
 @functools.lru_cache(maxsize=64)
 def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitude_index,
-              use_chord):
+              use_chord, brief=False):
     """The corrector jitted over arrays only (the static parts closed over), cached per
     static structure: low dispatch overhead and no retrace across continuation runs (the
     tolerance is traced too: a tighter search reuses the program)."""
@@ -137,7 +137,7 @@ def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitud
                              max_iter, amplitude_index, u_pred, tangent,
                              (lu, pivots) if use_chord else None)
 
-    return jax.jit(fn, compiler_options=_options(method))
+    return jax.jit(fn, compiler_options=_options(method, brief))
 
 
 @functools.lru_cache(maxsize=64)
@@ -152,10 +152,16 @@ def _amplitude_program(static_family, vector_field, method, n_periods):
     return jax.jit(fn, compiler_options=dict(FAST_COMPILE))
 
 
-def _options(method) -> dict:
+def _long(method, brief: bool) -> bool:
+    """Whether the corrector of `method` gets XLA's newer CPU fusion emitters: where the
+    method says its calls run long (`runs_long`) and the continuation is not `brief`."""
+    return bool(method.runs_long) and not brief
+
+
+def _options(method, brief: bool = False) -> dict:
     """XLA's options for the corrector of `method`: backend level 1, and the CPU's newer
-    fusion emitters where the method says its corrector runs long (`runs_long`)."""
-    return {**FAST_COMPILE, **(RUNS_LONG if method.runs_long else {})}
+    fusion emitters where its calls run long (`_long`)."""
+    return {**FAST_COMPILE, **(RUNS_LONG if _long(method, brief) else {})}
 
 
 def _corrector_fields(family, scale, p_scale, tol, u_pred, tangent, lu, pivots,
@@ -190,24 +196,24 @@ def _kept_corrector_short(family, scale, p_scale, tol, u_pred, tangent, lu, pivo
                              use_chord)
 
 
-def _kept_for(method):
-    return _kept_corrector if method.runs_long else _kept_corrector_short
+def _kept_for(method, brief: bool = False):
+    return _kept_corrector if _long(method, brief) else _kept_corrector_short
 
 
 def _corrector_call(family, vector_field, method, n_periods, max_iter, amplitude_index,
-                    use_chord, example):
+                    use_chord, example, brief=False):
     """(fn, kept): fn a function of (scale, p_scale, tol, u_pred, tangent, lu, pivots) ->
     CorrectedPoint, the kept program where there is one (kept True), else the cached
     `jax.jit` (`_compiled`). `example`: arguments of the right layout (used only where
-    the program is exported)."""
+    the program is exported). `brief`: see `continue_orbits`."""
     statics = (vector_field, method, int(n_periods), int(max_iter), int(amplitude_index),
                bool(use_chord))
-    kept = _kept_for(method).bind(family, *example, *statics)
+    kept = _kept_for(method, brief).bind(family, *example, *statics)
     if kept is not None:
         leaves = jax.tree_util.tree_leaves(eqx.filter(family, eqx.is_array))
         return (lambda *xs: CorrectedPoint(*kept(*leaves, *xs))), True
     dyn, static = eqx.partition(family, eqx.is_array)
-    fn = _compiled(static, *statics)
+    fn = _compiled(static, *statics, bool(brief))
     return (lambda *xs: fn(dyn, *xs)), False
 
 
@@ -228,14 +234,14 @@ def no_chord(n: int, committed: bool = False):
 
 def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: int = 1,
                        max_newton: int = 8, amplitude_index: int = 0,
-                       amplitudes: bool | str = True):
+                       amplitudes: bool | str = True, brief: bool = False):
     """Start compiling, on the background thread (`bsfs_jax._programs.in_background`), the
     corrector program that `continue_orbits(family, y_guess, p, ..., method=method)` with
     these arguments will call; its first call then finds it in jit's cache. For a
     continuation that follows the current one (`bsfs continue`'s cross-check of the folds
     by the other method): its tracing runs on the second core while this thread computes.
-    Returns the future; wait for it before that continuation (`_programs.settle`; else
-    both compile it)."""
+    `brief` as that continuation's. Returns the future; wait for it before that
+    continuation (`_programs.settle`; else both compile it)."""
     from .._programs import compile_in_background, in_background
     from ._orbit import _init_core
     from ._shooting import default_scale, float_leaves_to_arrays
@@ -255,12 +261,13 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
                    bool(method.uses_chord))
         example = (*head, *no_chord(n, committed=True))
         dyn, static = eqx.partition(fam, eqx.is_array)
-        if _kept_for(method).keeps(fam, *example, *statics):
+        kept = _kept_for(method, brief)
+        if kept.keeps(fam, *example, *statics):
             # The kept program's own prefetch (queued next; its `bind` later waits for it).
-            _kept_for(method).prefetch_now(fam, *example, *statics)
+            kept.prefetch_now(fam, *example, *statics)
         else:
-            compile_in_background(_compiled(static, *statics).lower(dyn, *head,
-                                                                    *no_chord(n)))
+            compile_in_background(_compiled(static, *statics, bool(brief)).lower(
+                dyn, *head, *no_chord(n)))
         if amplitudes == "events":  # the events' amplitudes (`Kernel.amplitudes`), queued
             # after the corrector, which every point needs first
             program = _amplitude_program(static, vector_field, method, int(n_periods))
@@ -283,6 +290,7 @@ class Kernel:
     tol: float
     max_newton: int
     amplitude_index: int
+    brief: bool = False
     calls: int = 0
     _fn: object = None
     _kept: bool = False
@@ -305,7 +313,8 @@ class Kernel:
             committed = no_chord(n, committed=True)  # as the kept program's calls pass them
             self._fn, self._kept = _corrector_call(
                 self.family, self.vector_field, self.method, self.n_periods,
-                self.max_newton, self.amplitude_index, use_chord, (*head, *committed))
+                self.max_newton, self.amplitude_index, use_chord, (*head, *committed),
+                self.brief)
             if self._kept:
                 self._no_chord = committed
         if use_chord and chord is not None and chord.lu is not None and \
