@@ -357,11 +357,11 @@ def _orbits(src: Sources, v: Values, targets: dict):
     put = lambda name, fn: v.put(f"orb.{name}", fn, f)  # noqa: E731
     a = lambda: d["frc"]["A"]  # noqa: E731
 
-    def hb(label):
-        for row in a()["hb"].raw():
+    def hb(label, case="A"):
+        for row in d["frc"][case]["hb"].raw():
             if row.get("label") == label:
-                return Node(row, f, f"frc.A.hb[{label}]")
-        raise _Absent(f"{f} has no HB row `{label}`")
+                return Node(row, f, f"frc.{case}.hb[{label}]")
+        raise _Absent(f"{f} has no HB row `{label}` for FRC {case}")
 
     put("date", lambda: date10(d["machine"]["date_utc"]))
     put("force", lambda: sig(a()["force_n"]))
@@ -376,6 +376,12 @@ def _orbits(src: Sources, v: Values, targets: dict):
                                       >= _t(targets, "hb_over_shooting")))
     put("hb_first_ratio", lambda: sig(hb("HB adaptive (start 8), first order")[
         "speed_ratio_shooting_over_this"]))
+    # FRC B: the cold preset at 5000 N (contact loss: many harmonics), issue 19's 10x.
+    put("cold_force", lambda: sig(d["frc"]["B"]["force_n"]))
+    put("hb_cold_ratio", lambda: sig(hb(ad, "B")["speed_ratio_shooting_over_this"]))
+    put("hb_cold_harmonics", lambda: integer(hb(ad, "B")["harmonics"]))
+    put("hb_cold_verdict", lambda: verdict(hb(ad, "B")["speed_ratio_shooting_over_this"]
+                                           >= _t(targets, "hb_cold_over_shooting")))
     put("hb8_ratio", lambda: sig(hb("HB fixed 8")["speed_ratio_shooting_over_this"]))
     put("hb8_harmonics", lambda: integer(hb("HB fixed 8")["harmonics"]))
     put("hb8_peak_diff", lambda: sci(hb("HB fixed 8")["peak_amp_rel_diff"]))
