@@ -99,8 +99,9 @@ def register(sub) -> None:
                    help="orbit method of the row continuations: shooting (default), "
                    "harmonic balance (hb), or auto (hb where its error estimate passes "
                    "along the whole row, else shooting), as `bsfs continue`; on the "
-                   "README's 16 x 8 example hb was slower (275 s against 164 s: many "
-                   "harmonics where the joints lose contact)")
+                   "README's 16 x 8 example hb's rows at 6000-8000 N stop where 128 "
+                   "harmonics miss the 1e-5 estimate (the joints lose contact) and the "
+                   "5000 N row at --max-points")
     p.add_argument("--harmonics", type=ui.count(1, 1024), default=8,
                    help="starting harmonic count for hb (8; doubled where needed)")
     p.add_argument("--hb-tol", type=ui.positive_float, default=1e-5,
