@@ -335,12 +335,13 @@ class HarmonicBalance(AbstractOrbitMethod):
         """Half peak-to-peak of every component, from the H harmonics themselves
         (`series_half_range`), each extreme started at the best of the `samples` grid's
         points: the samples' interpolant is the same series (its harmonics above H are
-        zero), so this is the default's value at a fifteenth of the cost (32 harmonics)."""
+        zero), so this is the default's value in about a ninth of the time (its jvp at 32
+        harmonics on the ball screw 0.33 ms against 2.94 ms)."""
+        _, ys = self.samples(vector_field, z, args, period, n_periods, scale)
         z = self._full(z, period, n_periods, scale)
         d = scale.shape[0]
         c0, a, b = self._unpack(z, d)
         wc = jnp.concatenate([c0[None].astype(complex), a - 1j * b]) * scale[None, :]
-        ys = self._to_time(z, d, 8 * self.n_samples) * scale[None, :]
         return series_half_range(wc, ys)
 
     def trajectory(self, vector_field, z, args, period, n_periods, scale, ts,

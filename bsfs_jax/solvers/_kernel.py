@@ -127,17 +127,19 @@ def prepare_outside(family):
 
 @functools.lru_cache(maxsize=64)
 def _compiled(static_family, vector_field, method, n_periods, max_iter, amplitude_index,
-              use_chord, brief=False):
+              use_chord, long=True):
     """The corrector jitted over arrays only (the static parts closed over), cached per
     static structure: low dispatch overhead and no retrace across continuation runs (the
-    tolerance is traced too: a tighter search reuses the program)."""
+    tolerance is traced too: a tighter search reuses the program). `long`: XLA's newer CPU
+    fusion emitters (`_long`), keyed as such, so a brief and a full continuation of a
+    method that never gets them share one program."""
     def fn(dynamic_family, scale, p_scale, tol, u_pred, tangent, lu, pivots):
         family = eqx.combine(dynamic_family, static_family)
         return _correct_core(family, vector_field, method, scale, p_scale, n_periods, tol,
                              max_iter, amplitude_index, u_pred, tangent,
                              (lu, pivots) if use_chord else None)
 
-    return jax.jit(fn, compiler_options=_options(method, brief))
+    return jax.jit(fn, compiler_options={**FAST_COMPILE, **(RUNS_LONG if long else {})})
 
 
 @functools.lru_cache(maxsize=64)
@@ -160,7 +162,8 @@ def _long(method, brief: bool) -> bool:
 
 def _options(method, brief: bool = False) -> dict:
     """XLA's options for the corrector of `method`: backend level 1, and the CPU's newer
-    fusion emitters where its calls run long (`_long`)."""
+    fusion emitters where its calls run long (`_long`), as `_compiled` and `_kept_for`
+    choose them."""
     return {**FAST_COMPILE, **(RUNS_LONG if _long(method, brief) else {})}
 
 
@@ -213,7 +216,7 @@ def _corrector_call(family, vector_field, method, n_periods, max_iter, amplitude
         leaves = jax.tree_util.tree_leaves(eqx.filter(family, eqx.is_array))
         return (lambda *xs: CorrectedPoint(*kept(*leaves, *xs))), True
     dyn, static = eqx.partition(family, eqx.is_array)
-    fn = _compiled(static, *statics, bool(brief))
+    fn = _compiled(static, *statics, _long(method, brief))
     return (lambda *xs: fn(dyn, *xs)), False
 
 
@@ -266,7 +269,7 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
             # The kept program's own prefetch (queued next; its `bind` later waits for it).
             kept.prefetch_now(fam, *example, *statics)
         else:
-            compile_in_background(_compiled(static, *statics, bool(brief)).lower(
+            compile_in_background(_compiled(static, *statics, _long(method, brief)).lower(
                 dyn, *head, *no_chord(n)))
         if amplitudes == "events":  # the events' amplitudes (`Kernel.amplitudes`), queued
             # after the corrector, which every point needs first
