@@ -477,3 +477,29 @@ def test_a_brief_continuation_compiles_for_quick_compilation(duffing_frc):
     folds = [b.p for b in branch.bifurcations if b.kind == "fold"]
     assert folds == pytest.approx([b.p for b in duffing_frc.bifurcations
                                    if b.kind == "fold"], rel=1e-10)
+
+
+def test_steps_that_follow_the_turn_find_the_same_folds(duffing_frc):
+    """`angle_target` (`bsfs map`'s rows): step lengths from the tangent's turn, up to a
+    far larger ds_max, reach the end of the interval with no corrector rejections beyond
+    a few, every accepted step turning by at most max_angle, and locate the same two
+    folds as the default rule (regula falsi to its tolerance, so the locations agree far
+    below the steps' size); a target outside (0, max_angle) is refused."""
+    family = frequency_family(**HARDENING)
+    kw = dict(vector_field=duffing, scale=jnp.ones(2), normalise=False, p_scale=1.0,
+              amplitude_index=0)
+    branch = continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                             ds_max=5.0, angle_target=0.25, max_angle=0.4, **kw)
+    assert branch.info["stop_reason"] == "left the parameter interval"
+    assert branch.info["steps"] < duffing_frc.info["steps"]
+    assert branch.info["rejected"] < duffing_frc.info["rejected"]
+    folds = sorted((b for b in branch.bifurcations if b.kind == "fold"), key=lambda b: b.p)
+    ref = sorted((b for b in duffing_frc.bifurcations if b.kind == "fold"),
+                 key=lambda b: b.p)
+    assert len(folds) == len(ref) == 2 and all(b.located for b in folds)
+    for b, r in zip(folds, ref, strict=True):
+        assert b.p == pytest.approx(r.p, rel=1e-7)
+        assert b.amplitude == pytest.approx(r.amplitude, rel=1e-6)
+    with pytest.raises(ValueError, match="angle_target must lie in"):
+        continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
+                        angle_target=0.5, max_angle=0.4, **kw)

