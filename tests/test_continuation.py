@@ -503,3 +503,43 @@ def test_steps_that_follow_the_turn_find_the_same_folds(duffing_frc):
     with pytest.raises(ValueError, match="angle_target must lie in"):
         continue_orbits(family, jnp.array([0.1, 0.0]), 0.8, 1.3, ds=0.05,
                         angle_target=0.5, max_angle=0.4, **kw)
+
+
+def test_event_location_stops_at_the_test_functions_noise_floor(monkeypatch):
+    """Regula falsi on a fold's test function g = dp/ds whose values carry noise above
+    1e-6 of their size at the bracket's ends (a converged orbit's tangent carries the
+    corrector tolerance's noise): it stops once |g| is at the noise floor and has stalled,
+    returns the point of smallest |g| met (not the last), and counts it located; without
+    the floor rule the same search goes on chasing the noise."""
+    from bsfs_jax.solvers import _events
+    from bsfs_jax.solvers._branch import HostPoint
+    from bsfs_jax.solvers._events import _illinois
+
+    def point(h, g):
+        return HostPoint(u=np.array([h, 0.0]), tangent=np.array([1.0, g]), jacobian=None,
+                         residual=0.0, steps=1, ok=True, mu=np.array([0.5, 0.2]),
+                         amplitudes=np.zeros(1), slope=0.0, error=0.0, accurate=True,
+                         state=np.zeros(1), ds_used=h)
+
+    class Noisy:
+        """g(h) = 1e-6 (0.3 - h) (1 + 3 h^2) + noise, h the offset along u[0]."""
+
+        def __init__(self, noise):
+            self.rng, self.noise, self.calls = np.random.default_rng(7), noise, 0
+
+        def correct(self, u_pred, tangent, ds_used=0.0, chord=None):
+            self.calls += 1
+            h = float(u_pred[0])
+            return point(h, 1e-6 * (0.3 - h) * (1.0 + 3.0 * h * h)
+                         + self.noise * self.rng.standard_normal())
+
+    before, after = point(0.0, 3e-7), point(1.0, -2.8e-6)
+    quiet = Noisy(5e-11)  # 2e-5 of |g| at the ends: above 1e-6, below the floor
+    best, located = _illinois(quiet, before, after, 0, 40)
+    assert located and quiet.calls <= 10
+    assert best.u[0] == pytest.approx(0.3, abs=1e-3)
+    assert abs(best.tangent[-1]) <= 1e-4 * 2.8e-6
+    monkeypatch.setattr(_events, "NOISE_FLOOR", 0.0)
+    chasing = Noisy(5e-11)
+    _illinois(chasing, before, after, 0, 40)
+    assert chasing.calls > quiet.calls

@@ -22,7 +22,8 @@ MAX_NUM = 10**4
 #: Newton steps alone the README's 16 x 8 map ran out of its 200 points before the end of
 #: the band in every row; with 100 x ds they reached it in 190-224 corrector calls. With
 #: steps that follow the turn (0.25 rad aimed at, 0.4 at most) and up to 1000 x ds, in
-#: 70-144 (8 rows 22.1 -> 15.9 s warm, the same 16 folds to 1e-3 Hz, 2026-12-02).
+#: 70-144 (8 rows 22.1 -> 15.9 s warm, the same 16 folds to 1e-6 Hz, 2026-12-02), and in
+#: 57-130 with the folds located to their test function's noise floor (13.9 s).
 DS_MAX_FACTOR = 1000
 ANGLE_TARGET, MAX_ANGLE = 0.25, 0.4
 #: Regula falsi iterations per event of a row continuation: with the longer steps a fold's
