@@ -238,32 +238,50 @@ def run(args) -> int:
     def row_bifurcations(y):
         from .._programs import settle
         from ..machine import bsfs_family, simulate
-        from ..solvers import HarmonicBalance, continue_orbits
+        from ..solvers import HarmonicBalance, SolverError, continue_orbits
         from ._continue_cmd import continue_by_method
 
         p, _, force = row(y)
         try:
             lo, hi = (x[0], x[-1]) if args.band is None else args.band
-            # The transient's last period: harmonic balance starts from its Fourier
-            # coefficients (`init_from_samples`), shooting from its first state.
-            spp = max(64, 4 * args.harmonics)
-            traj = simulate(p, frequency_hz=lo, force_n=force,
-                            transient_periods=args.transient, periods=1,
-                            samples_per_period=spp)
-            guess = traj.host_state()[:spp]
             family = bsfs_family(p, force)
-            settle(pending)
-            branch, why = continue_by_method(
-                lambda method: continue_orbits(family, guess, lo, hi, method=method,
-                                               ds=args.ds, ds_max=DS_MAX_FACTOR * args.ds,
-                                               max_points=args.max_points,
-                                               amplitude_index=2, locate_iters=LOCATE_ITERS,
-                                               find_peaks=False, amplitudes="events",
-                                               angle_target=ANGLE_TARGET,
-                                               max_angle=MAX_ANGLE),
-                args.method, HarmonicBalance(harmonics=args.harmonics, error_tol=args.hb_tol,
-                                             second_order=True),
-                shooting, args.hb_tol)
+
+            def transient():
+                # The transient's last period: harmonic balance starts from its Fourier
+                # coefficients (`init_from_samples`), shooting from its first state.
+                spp = max(64, 4 * args.harmonics)
+                traj = simulate(p, frequency_hz=lo, force_n=force,
+                                transient_periods=args.transient, periods=1,
+                                samples_per_period=spp)
+                return traj.host_state()[:spp]
+
+            def from_guess(guess):
+                settle(pending)
+                return continue_by_method(
+                    lambda method: continue_orbits(
+                        family, guess, lo, hi, method=method, ds=args.ds,
+                        ds_max=DS_MAX_FACTOR * args.ds, max_points=args.max_points,
+                        amplitude_index=2, locate_iters=LOCATE_ITERS, find_peaks=False,
+                        amplitudes="events", angle_target=ANGLE_TARGET,
+                        max_angle=MAX_ANGLE),
+                    args.method, HarmonicBalance(harmonics=args.harmonics,
+                                                 error_tol=args.hb_tol, second_order=True),
+                    shooting, args.hb_tol)
+
+            branch = None
+            if args.method == "shooting":
+                # Shooting's first orbit by Newton from rest, kept where it is stable
+                # (an attracting orbit at the band's start): no transient, and no program
+                # to integrate one (on the README's example about 2.5 s of the two cores'
+                # time at the start, all 8 rows starting so); else from a transient.
+                try:
+                    branch, why = from_guess(np.zeros(6))
+                except SolverError:
+                    branch = None
+                if branch is not None and not bool(branch.stable[0]):
+                    branch = None
+            if branch is None:
+                branch, why = from_guess(transient())
             for w in why:
                 notes.append(f"{args.y} = {y:g}: {w}")
         except Exception as exc:  # noqa: BLE001 - a row without curves is reported
