@@ -122,18 +122,16 @@ def markdown(r) -> str:
             f": {_yes(met['compile_share'])} | {c['warm_over_cold']:.2f}: "
             f"{_yes(met['warm'])} |")
     for c in r["commands"]:
-        if c.get("date"):
+        if c.get("date"):  # a command measured again after the run (its own date)
             b = c.get("before")
+            reps = c.get("repeats")
             lines += ["", f"`{c['command']}` was measured on {c['date']}"
+                      + (f" (medians of {reps} fresh processes)" if reps else "")
                       + ("" if not b else
-                         f"; at commit {b['commit']}, before the changes below, it took {b['cold_wall_s']:.1f} s "
-                         f"cold (compile {b['cold_compile_s']:.1f} s in "
-                         f"{b['cold_compiles']} programs) and {b['warm_wall_s']:.1f} s warm. The "
-                         "changes: the forecast's FRC continued by shooting where the "
-                         "working force opens a joint, its gradients in forward mode and "
-                         "in one program for the peak amplitude and the folds, the "
-                         "equilibrium compiled once, the probes' continuations in "
-                         "threads and the nominal curve beside the lift-off search") + "."]
+                         f"; before the changes below (the run of {b['date']}) it took "
+                         f"{b['cold_wall_s']:.1f} s cold and {b['warm_wall_s']:.1f} s warm "
+                         f"({b['compiles']:.0f} programs). The changes: {b['changes']}")
+                      + "."]
     lines += ["", "Exit codes other than 0 (4: identify did not converge) are listed in "
               "`benchmarks/results/cold.json`."]
     return "\n".join(lines) + "\n"
