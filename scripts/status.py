@@ -732,6 +732,8 @@ def _cold(src: Sources, v: Values):
     put("cold.predict_before_date", lambda: date10(cmd("predict")["before"]["date"]))
     put("cold.simulate_before_date", lambda: cmd("simulate")["before"]["date"])
     put("cold.sens_before_date", lambda: cmd("sensitivity")["before"]["date"])
+    put("cold.map_date", lambda: cmd("map")["date"])
+    put("cold.map_repeats", lambda: integer(cmd("map")["repeats"]))
     a = "benchmarks/results/ab.json"  # C2: a change against the code before it
 
     def ab(name):
