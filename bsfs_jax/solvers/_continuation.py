@@ -191,7 +191,8 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
                                f"{kernel.method.harmonics} harmonics (max_harmonics) at p = "
                                f"{cur.p(p_scale):g}")
                 break
-            ok = cur.converged and float(np.dot(cur.tangent, prev.tangent)) >= cos_max
+            cos_turn = float(np.dot(cur.tangent, prev.tangent))
+            ok = cur.converged and cos_turn >= cos_max
             if not ok:
                 rejected += 1
                 ds *= 0.5
@@ -226,8 +227,8 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
             tests_prev = tests
             # Step-size adaptation from the corrector's effort (chord + Newton iterations)
             # and, with an angle_target, from the turn of the tangent.
-            ds = _next_step(ds, cur.steps, max_newton, angle_target,
-                            float(np.dot(cur.tangent, prev.tangent)), ds_min, ds_max)
+            ds = _next_step(ds, cur.steps, max_newton, angle_target, cos_turn, ds_min,
+                            ds_max)
             # Past the strongly nonlinear stretch (a resonance peak) fewer harmonics
             # may meet the estimate again: try half as many at this point now and then.
             if h_min is not None and kernel.method.harmonics > h_min and down.due(

@@ -134,11 +134,13 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
         res = integrate(field, z, (args, scale), 0.0, t_end, ts, state_run, throw=False)
         return res.ys[-1] - z, res.ys, res.result
 
+    def within(f, z):
+        return jnp.max(jnp.abs(f)) <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z)))
+
     def cond(c):
         z, f, k, ok = c[:4]
         # At least one chord step: its run gives the samples at the returned state.
-        return (k == 0) | ((k < max_steps) & (jnp.max(jnp.abs(f)) > tol * jnp.maximum(
-            1.0, jnp.max(jnp.abs(z)))) & ok)
+        return (k == 0) | ((k < max_steps) & ~within(f, z) & ok)
 
     # Chord iterations with the Newton matrix of the sampled state: each costs one period
     # map of the state only (the variational equations cost several times more, and
@@ -159,7 +161,7 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
         cond, body, (z0, f0, jnp.asarray(0), ok0, ys0, RESULTS.successful))
     jac = j0
     res_norm = jnp.max(jnp.abs(f))
-    converged = ok & (res_norm <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z))))
+    converged = ok & within(f, z)
     mu = host_eigvals(jac + eye)
     mu = mu[jnp.argsort(-jnp.abs(mu))]
     ys = ys * scale[None, :]
@@ -169,7 +171,7 @@ def _check_one(vector_field, setup, data, value, y_guess, scale, n, tol, max_ste
     converged = converged & (result == RESULTS.successful)
     # Chord steps the convergence needed: the one run that only samples an orbit the
     # start already was (to the tolerance) is not counted.
-    start_ok = ok0 & (jnp.max(jnp.abs(f0)) <= tol * jnp.maximum(1.0, jnp.max(jnp.abs(z0))))
+    start_ok = ok0 & within(f0, z0)
     return OrbitCheck(z * scale, converged, res_norm, mu, strobe, samples,
                       k - start_ok.astype(k.dtype),
                       jnp.max(jnp.abs(z - z0)), jac + eye)
