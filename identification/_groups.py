@@ -4,7 +4,8 @@ Everything that varies between fits of the same kind of test (measured harmonics
 their noise weights, which model each sine record uses, the prior parameter set, prior means
 and widths, the spindle speeds) is an array in `FitData`; only the *structure* (which
 parameter keys are fitted, for which speed, in log or offset form) is static (`Structure`).
-Record counts are padded to size classes (`size_class`): a padded sine record or FRF line
+Record counts are padded to size classes (`size_class`; a group's sine records to at least
+`MIN_SINE_ROWS`): a padded sine record or FRF line
 has an infinite standard error, so its residual and Jacobian rows are zero. So one compiled
 program serves every start, held-parameter variant, model-choice iteration and replicate of
 a layout (see `_model.py` and `_solve.py`).
@@ -33,6 +34,18 @@ _PAD_FREQUENCY_HZ = 100.0
 def size_class(n: int) -> int:
     """Padded count: 0, or the next power of two (records, orbit slots and FRF lines)."""
     return 0 if n <= 0 else 1 << (int(n) - 1).bit_length()
+
+
+#: The fewest sine rows of a speed group that has any: a fit of one to four sine records
+#: then has one layout (a padded row costs one linear response per harmonic), so one
+#: compiled solve serves them all (orbit slots, each an orbit solved, stay 1, 2, 4, ...).
+MIN_SINE_ROWS = 4
+
+
+def sine_rows(n: int) -> int:
+    """Padded count of a group's sine records: 0, or `size_class` but at least
+    `MIN_SINE_ROWS`."""
+    return 0 if n <= 0 else max(MIN_SINE_ROWS, size_class(n))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,7 +183,7 @@ def padded_counts(problem, is_frf) -> dict:
     out = {}
     for s in problem.speeds:
         sine_idx, _, orbit, n_lines = _members(problem, is_frf, s)
-        out[s] = (size_class(len(sine_idx)), size_class(len(orbit)), size_class(n_lines))
+        out[s] = (sine_rows(len(sine_idx)), size_class(len(orbit)), size_class(n_lines))
     return out
 
 
@@ -189,7 +202,7 @@ def build_data(problem, is_frf):
     for gi, s in enumerate(problem.speeds):
         sine_idx, frf_idx, orbit, n_lines = _members(problem, is_frf, s)
         rows, slots, lines = (max(a, b) for a, b in zip(
-            (size_class(len(sine_idx)), size_class(len(orbit)), size_class(n_lines)),
+            (sine_rows(len(sine_idx)), size_class(len(orbit)), size_class(n_lines)),
             pad.get(s, (0, 0, 0))))
         orbit_index = np.asarray(orbit + [orbit[0] if orbit else 0] * (slots - len(orbit)),
                                  int)

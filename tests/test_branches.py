@@ -116,6 +116,15 @@ def swept_problem(swept_records):
     return idn.Problem([data["up"], data["down"]], truth, ("c_n",), model="nonlinear")
 
 
+def _swap_records(pb, rows):
+    """`rows` (one per sine row of the group) with the two records' rows swapped (the
+    group's rows are padded: `_groups.MIN_SINE_ROWS`)."""
+    rows = np.array(rows)
+    a, b = (pb.layout[i][3] for i in (0, 1))
+    rows[[a, b]] = rows[[b, a]]
+    return rows
+
+
 def test_swept_records_start_from_their_sweeps_orbit(swept_problem, swept_records):
     """In the fit a swept record's orbit starts from its anchor, the orbit its sweep
     reaches (`_anchors.py`), not from its measured state: with the headers swapped the
@@ -135,7 +144,7 @@ def test_swept_records_start_from_their_sweeps_orbit(swept_problem, swept_record
     (g,) = own.fit_data.groups
     swapped = own.with_fit_data(eqx.tree_at(
         lambda d: d.groups, own.fit_data,
-        (eqx.tree_at(lambda x: x.sine_anchor, g, np.asarray(g.sine_anchor)[::-1]),)))
+        (eqx.tree_at(lambda x: x.sine_anchor, g, _swap_records(pb, g.sine_anchor)),)))
     other = swapped.model_harmonics(theta)
     for d, m in zip(pb.data, other):
         assert np.abs(m[0] - d.acceleration[0]) / np.max(np.sqrt(d.acceleration_var[0])) > 100
@@ -155,7 +164,7 @@ def test_a_lane_on_a_stale_anchor_is_solved_again(swept_problem):
     (g,) = own.groups
     stale = eqx.tree_at(lambda d: d.groups, own,
                         (eqx.tree_at(lambda x: x.sine_anchor, g,
-                                     np.asarray(g.sine_anchor)[::-1]),))
+                                     _swap_records(pb, g.sine_anchor)),))
     calls = []
 
     def resolve(th, ds):

@@ -92,7 +92,7 @@ def _cross_check(pb):
     """Both optimisers from the prior with a tight step test; compare the optima."""
     rows = full_used_mask(pb)
     ours = solve(np.zeros((1, pb.n_params)), True, pb.fit_data, pb.structure,
-                 SolveOptions(max_steps=400, step_tol=1e-6))
+                 SolveOptions(step_tol=1e-6))
     mp = levenberg_marquardt(pb.rj, np.zeros(pb.n_params), max_steps=400, tol=1e-6, rows=rows,
                              max_std=no_information_std(pb))
     assert mp.converged, mp.reason
