@@ -122,6 +122,19 @@ def _chirp_force_spectrum(pr: PlannedRecord, sample_rate_hz):
     return f[keep], np.abs(spec[keep]) ** 2, n
 
 
+@eqx.filter_jit
+def _chirp_accelerance(prior, speed_rpm, f):
+    """The linear model's accelerance [m/s^2 per N] at the lines `f` [Hz] and the speed,
+    as one program (called eagerly it ran op by op: 95 small compiled programs in a cold
+    `bsfs plan-test`)."""
+    import bsfs_jax
+
+    from ._measurement import linear_acceleration
+
+    system = bsfs_jax.build_system(prior.replace("thermal.speed_rpm", speed_rpm))
+    return linear_acceleration(system, f, jnp.ones(f.shape, complex))
+
+
 def _planned_frf(pr: PlannedRecord, j, prior, sample_rate_hz, accel_snr_db, force_snr_db):
     """The FRF lines a planned chirp gives, with variances from the sensors' SNR.
 
@@ -129,14 +142,10 @@ def _planned_frf(pr: PlannedRecord, j, prior, sample_rate_hz, accel_snr_db, forc
     a DFT line, so a line's accelerance A_k / F_k carries (N / (2 |F_k|^2)) (sigma_a^2 +
     |H_k|^2 sigma_f^2), with sigma set by the SNR relative to each channel's RMS.
     """
-    import bsfs_jax
-
     from ._frf import FrfRecord
-    from ._measurement import linear_acceleration
 
     f, f2, n = _chirp_force_spectrum(pr, sample_rate_hz)
-    system = bsfs_jax.build_system(prior.replace("thermal.speed_rpm", pr.speed_rpm))
-    h = np.asarray(linear_acceleration(system, jnp.asarray(f), jnp.ones(f.shape, complex)))
+    h = np.asarray(_chirp_accelerance(prior, jnp.asarray(pr.speed_rpm, float), jnp.asarray(f)))
     rms_f = np.sqrt(2.0 * np.sum(f2)) / n
     rms_a = np.sqrt(2.0 * np.sum(np.abs(h) ** 2 * f2)) / n
     sa2 = (rms_a * 10 ** (-accel_snr_db / 20)) ** 2

@@ -100,6 +100,21 @@ class OptimizationResult:
         }
 
 
+#: The static-stiffness constraint's value on the host (start, after each penalty round,
+#: optimum) as one program: called eagerly, its modal analysis ran op by op (95 small
+#: compiled programs in a cold `bsfs optimize`).
+_static_stiffness = eqx.filter_jit(static_stiffness)
+
+
+@eqx.filter_jit
+def _modes(params):
+    """The linearised modes of `params` as one program (for `simulation_check`)."""
+    from ..machine import modes
+    from ..model import build_system
+
+    return modes(build_system(params))
+
+
 @functools.lru_cache(maxsize=16)
 def _objective(metric_name: str, names: tuple, settings: OrbitSettings):
     metric = get_metric(metric_name)
@@ -194,7 +209,7 @@ def optimize(metric_name: str, params: BallScrewParams, vary, bounds: dict | Non
     value_fn = compiled(metric.name, names, settings)[0]
     m0 = float(value_fn(jnp.asarray(theta_start), params, op, None))
     _check_finite(m0, metric, op)
-    k0 = float(static_stiffness(start_params))
+    k0 = float(_static_stiffness(start_params))
     k_min = (min_stiffness_n_per_um * 1e6) if min_stiffness_n_per_um else 1e-30
     z = jnp.asarray(z0)
     steps, converged = 0, False
@@ -205,14 +220,14 @@ def optimize(metric_name: str, params: BallScrewParams, vary, bounds: dict | Non
         steps += int(n)
         converged = bool(ok)
         theta = np.asarray(theta_of(z, jnp.asarray(lo), jnp.asarray(hi)))
-        k_opt = float(static_stiffness(with_values(params, names, jnp.asarray(theta))))
+        k_opt = float(_static_stiffness(with_values(params, names, jnp.asarray(theta))))
         if not min_stiffness_n_per_um or k_opt >= k_min * (1 - CONSTRAINT_TOL):
             break
     theta = np.asarray(theta_of(z, jnp.asarray(lo), jnp.asarray(hi)))
     opt_params = validate(with_values(params, names, jnp.asarray(theta)), source="optimum")
     m_opt = float(value_fn(jnp.asarray(theta), params, op, None))
     _check_finite(m_opt, metric, op)
-    k_opt = float(static_stiffness(opt_params))
+    k_opt = float(_static_stiffness(opt_params))
     sign = 1.0 if metric.direction == "min" else -1.0
     improvement = 100.0 * sign * (m0 - m_opt) / abs(m0)
     tol = 1e-3 * (hi - lo)
@@ -241,8 +256,7 @@ def verify_by_simulation(metric_name: str, params: BallScrewParams, *, frequency
 
     Returns {"quantity", "model", "simulated", "relative_difference", "checked", ...}.
     """
-    from ..machine import modes, simulate
-    from ..model import build_system
+    from ..machine import simulate
     from ._metrics import frc_peak_location, frf_peak_frequency, orbit_amplitude
 
     metric = get_metric(metric_name)
@@ -260,14 +274,14 @@ def verify_by_simulation(metric_name: str, params: BallScrewParams, *, frequency
         out.update(quantity=f"nut amplitude [um] at {f_op:.6g} Hz, {p_op:g} N",
                    model=model_amp * 1e6, simulated=simulated * 1e6)
     elif metric.name == "static_stiffness":
-        m = modes(build_system(params))
+        m = _modes(params)
         f_qs = 0.05 * float(m.frequencies_hz[0])
         traj = simulate(params, frequency_hz=f_qs, force_n=p_op, **sim)
         out.update(quantity=f"static stiffness [N/um] from a {f_qs:.4g} Hz, {p_op:g} N "
                    "quasi-static response", model=float(m.static_stiffness) * 1e-6,
                    simulated=p_op / float(traj.amplitude()) * 1e-6)
     elif metric.name == "natural_frequency":
-        m = modes(build_system(params))
+        m = _modes(params)
         f1 = float(m.frequencies_hz[0])
         shape = np.asarray(m.shapes[:, 0])
         y0 = np.concatenate([1e-8 * shape / np.max(np.abs(shape)), np.zeros(3)])

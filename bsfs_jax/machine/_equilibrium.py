@@ -147,9 +147,28 @@ def linearise(model, static_force_n=0.0, *, throw: bool = True):
 
     `throw` as in `equilibrium`.
     """
-    system = as_system(model)
+    system = _system(model)
     x_eq = equilibrium(system, static_force_n, throw=throw)
-    return (*tangent_matrices(system, x_eq), x_eq)
+    return (*_tangent_matrices(system, x_eq), x_eq)
+
+
+# Called eagerly (a report's modes, a design check, a plan), the model's construction, its
+# linearisation and the modal analysis ran op by op: about 90 small compiled programs. As a
+# few programs of their own they compile once; under an outer jit they are inlined.
+_built = eqx.filter_jit(as_system)
+_tangent_matrices = eqx.filter_jit(tangent_matrices)
+
+
+@eqx.filter_jit
+def _modes_at(system, x_eq) -> "Modes":
+    return Modes.from_matrices(*tangent_matrices(system, x_eq), x_eq)
+
+
+def _system(model):
+    """`as_system(model)`, built by one program where `model` is parameters."""
+    from ..model import System
+
+    return model if isinstance(model, System) else _built(model)
 
 
 def modes(model, static_force_n=0.0, *, throw: bool = True) -> Modes:
@@ -157,7 +176,8 @@ def modes(model, static_force_n=0.0, *, throw: bool = True) -> Modes:
 
     `throw` as in `equilibrium`.
     """
-    return Modes.from_matrices(*linearise(model, static_force_n, throw=throw))
+    system = _system(model)
+    return _modes_at(system, equilibrium(system, static_force_n, throw=throw))
 
 
 def linear_frf(model, frequencies_hz, static_force_n=0.0, *, throw: bool = True):
