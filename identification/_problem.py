@@ -41,6 +41,13 @@ from ._parameters import DEFAULT_FIT, FIT_PARAMETERS, MAX_HARMONIC_FRACTION
 _build = eqx.filter_jit(bsfs_jax.build_system)
 
 
+@eqx.filter_jit
+def _stiffnesses(prior):
+    """The prior's nut and bearing Hertz constants and screw stiffness, as one program
+    (each evaluated eagerly ran its Hertz contact formulas op by op)."""
+    return nut_hertz_k(prior), bearing_hertz_k(prior), screw_stiffness(prior)
+
+
 class Problem:
     """A fit problem: data of the records, the prior parameter set, the parameters to fit.
 
@@ -98,12 +105,14 @@ class Problem:
                              "coefficient has no effect; fit 'd_n,d_b' instead")
         # Make the fitted stiffness keys explicit so that `replace` can scale them.
         base = prior
+        if {"nut_k", "bearing_k", "screw_k"} & set(self.fit):
+            k_nut, k_bearing, k_screw = _stiffnesses(prior)
         if "nut_k" in self.fit:
-            base = base.replace("nut.hertz_k_m_per_n23", nut_hertz_k(prior))
+            base = base.replace("nut.hertz_k_m_per_n23", k_nut)
         if "bearing_k" in self.fit:
-            base = base.replace("bearing.hertz_k_m_per_n23", bearing_hertz_k(prior))
+            base = base.replace("bearing.hertz_k_m_per_n23", k_bearing)
         if "screw_k" in self.fit:
-            base = base.replace("screw.stiffness_n_per_um", screw_stiffness(prior) / 1e6)
+            base = base.replace("screw.stiffness_n_per_um", k_screw / 1e6)
         self.prior = prior
         self.base = base
         self._expand_parameters()
