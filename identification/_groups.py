@@ -178,12 +178,17 @@ def _members(problem, is_frf, s):
     return sine_idx, frf_idx, orbit, n_lines
 
 
+def _classes(sine_idx, orbit, n_lines) -> tuple:
+    """(sine rows, orbit slots, FRF lines) of a speed group after padding."""
+    return sine_rows(len(sine_idx)), size_class(len(orbit)), size_class(n_lines)
+
+
 def padded_counts(problem, is_frf) -> dict:
     """{speed: (sine rows, orbit slots, FRF lines)} after padding to size classes."""
     out = {}
     for s in problem.speeds:
         sine_idx, _, orbit, n_lines = _members(problem, is_frf, s)
-        out[s] = (sine_rows(len(sine_idx)), size_class(len(orbit)), size_class(n_lines))
+        out[s] = _classes(sine_idx, orbit, n_lines)
     return out
 
 
@@ -201,9 +206,8 @@ def build_data(problem, is_frf):
     width = 6 + 12 * ORBIT_HARMONICS if sweeps else 0
     for gi, s in enumerate(problem.speeds):
         sine_idx, frf_idx, orbit, n_lines = _members(problem, is_frf, s)
-        rows, slots, lines = (max(a, b) for a, b in zip(
-            (sine_rows(len(sine_idx)), size_class(len(orbit)), size_class(n_lines)),
-            pad.get(s, (0, 0, 0))))
+        rows, slots, lines = (max(a, b) for a, b in zip(_classes(sine_idx, orbit, n_lines),
+                                                        pad.get(s, (0, 0, 0))))
         orbit_index = np.asarray(orbit + [orbit[0] if orbit else 0] * (slots - len(orbit)),
                                  int)
         sf, sF, sA, sS, sR, sR2 = _sine_arrays(problem, sine_idx, h, rows)

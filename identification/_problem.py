@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import bsfs_jax
+from bsfs_jax.machine import as_system
 from bsfs_jax.model import bearing_hertz_k, nut_hertz_k, screw_stiffness
 
 from . import _model
@@ -37,8 +37,6 @@ from ._force_noise import force_gains
 from ._groups import build_data, used_rows
 from ._lm import NO_INFORMATION_STD
 from ._parameters import DEFAULT_FIT, FIT_PARAMETERS, MAX_HARMONIC_FRACTION
-
-_build = eqx.filter_jit(bsfs_jax.build_system)
 
 
 @eqx.filter_jit
@@ -124,7 +122,7 @@ class Problem:
         # Models, left-out lines and the weights' transfer functions are decided at the prior,
         # or at `model_theta` (an estimate: see `rechosen`).
         self.model_theta = None if model_theta is None else np.asarray(model_theta, float)
-        systems = {s: _build(base.replace("thermal.speed_rpm", s) if model_theta is None
+        systems = {s: as_system(base.replace("thermal.speed_rpm", s) if model_theta is None
                              else self.params_at(self.model_theta, s)) for s in self.speeds}
         # The chirp-line check needs no orbit model: the planner (nonlinear_ratio) gets it too.
         self.amplitude_ratios, self.linearisation_z, self.transfer = screen(
@@ -229,7 +227,7 @@ class Problem:
             spec = FIT_PARAMETERS[n]
             if spec.per_speed:
                 for s in self.speeds:
-                    system = _build(self.base.replace("thermal.speed_rpm", s))
+                    system = as_system(self.base.replace("thermal.speed_rpm", s))
                     v = (system.thermal.nut_offset if n == "d_n"
                          else system.thermal.bearing_offset)
                     names.append(f"{n}@{s:g}rpm")
@@ -285,7 +283,7 @@ class Problem:
 
     def system_at(self, theta, speed):
         """The `System` at `speed` for the fitted theta (one compiled build)."""
-        return _build(self.params_at(np.asarray(theta, float), speed))
+        return as_system(self.params_at(np.asarray(theta, float), speed))
 
     # -- model and residual ----------------------------------------------------------------
     def predict(self, theta, fit_data=None):

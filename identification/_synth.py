@@ -149,13 +149,6 @@ def _antialias(order, cutoff, fs_high):
 
 
 @eqx.filter_jit
-def _system(params):
-    """`build_system` as one program: called eagerly it ran op by op (39 small compiled
-    programs in a cold `bsfs synth`)."""
-    return bsfs_jax.build_system(params)
-
-
-@eqx.filter_jit
 def _respond(system, forcing, ts, settings, y0):
     res = bsfs_jax.integrate(bsfs_jax.vector_field, y0, (system, forcing), 0.0,
                              ts[-1], ts, settings, throw=False)
@@ -251,8 +244,10 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
     n_hi = n_settle + n_rec * effects.oversample
     ts = jnp.arange(1, n_hi + 1) / fs_hi
     settings = bsfs_jax.SolverSettings(rtol=rtol, atol=atol, max_steps=4_000_000)
-    system = _system(params)
+    from bsfs_jax.machine import as_system  # the system by one program, not op by op
     from bsfs_jax.solvers import check_result
+
+    system = as_system(params)
 
     y0s = jnp.stack([_start_state(system, fc, sweep) for fc in forcings])
     if len(forcings) == 1:

@@ -106,15 +106,6 @@ class OptimizationResult:
 _static_stiffness = eqx.filter_jit(static_stiffness)
 
 
-@eqx.filter_jit
-def _modes(params):
-    """The linearised modes of `params` as one program (for `simulation_check`)."""
-    from ..machine import modes
-    from ..model import build_system
-
-    return modes(build_system(params))
-
-
 @functools.lru_cache(maxsize=16)
 def _objective(metric_name: str, names: tuple, settings: OrbitSettings):
     metric = get_metric(metric_name)
@@ -256,7 +247,7 @@ def verify_by_simulation(metric_name: str, params: BallScrewParams, *, frequency
 
     Returns {"quantity", "model", "simulated", "relative_difference", "checked", ...}.
     """
-    from ..machine import simulate
+    from ..machine import modes, simulate
     from ._metrics import frc_peak_location, frf_peak_frequency, orbit_amplitude
 
     metric = get_metric(metric_name)
@@ -274,14 +265,14 @@ def verify_by_simulation(metric_name: str, params: BallScrewParams, *, frequency
         out.update(quantity=f"nut amplitude [um] at {f_op:.6g} Hz, {p_op:g} N",
                    model=model_amp * 1e6, simulated=simulated * 1e6)
     elif metric.name == "static_stiffness":
-        m = _modes(params)
+        m = modes(params)
         f_qs = 0.05 * float(m.frequencies_hz[0])
         traj = simulate(params, frequency_hz=f_qs, force_n=p_op, **sim)
         out.update(quantity=f"static stiffness [N/um] from a {f_qs:.4g} Hz, {p_op:g} N "
                    "quasi-static response", model=float(m.static_stiffness) * 1e-6,
                    simulated=p_op / float(traj.amplitude()) * 1e-6)
     elif metric.name == "natural_frequency":
-        m = _modes(params)
+        m = modes(params)
         f1 = float(m.frequencies_hz[0])
         shape = np.asarray(m.shapes[:, 0])
         y0 = np.concatenate([1e-8 * shape / np.max(np.abs(shape)), np.zeros(3)])

@@ -147,15 +147,14 @@ def linearise(model, static_force_n=0.0, *, throw: bool = True):
 
     `throw` as in `equilibrium`.
     """
-    system = _system(model)
+    system = as_system(model)
     x_eq = equilibrium(system, static_force_n, throw=throw)
     return (*_tangent_matrices(system, x_eq), x_eq)
 
 
-# Called eagerly (a report's modes, a design check, a plan), the model's construction, its
-# linearisation and the modal analysis ran op by op: about 90 small compiled programs. As a
-# few programs of their own they compile once; under an outer jit they are inlined.
-_built = eqx.filter_jit(as_system)
+# Called eagerly (a report's modes, a design check, a plan), the linearisation and the modal
+# analysis ran op by op: about 50 small compiled programs. As programs of their own they
+# compile once; under an outer jit they are inlined (the system: `as_system`).
 _tangent_matrices = eqx.filter_jit(tangent_matrices)
 
 
@@ -164,19 +163,12 @@ def _modes_at(system, x_eq) -> "Modes":
     return Modes.from_matrices(*tangent_matrices(system, x_eq), x_eq)
 
 
-def _system(model):
-    """`as_system(model)`, built by one program where `model` is parameters."""
-    from ..model import System
-
-    return model if isinstance(model, System) else _built(model)
-
-
 def modes(model, static_force_n=0.0, *, throw: bool = True) -> Modes:
     """Natural frequencies and mode shapes linearised about the static equilibrium.
 
     `throw` as in `equilibrium`.
     """
-    system = _system(model)
+    system = as_system(model)
     return _modes_at(system, equilibrium(system, static_force_n, throw=throw))
 
 
