@@ -260,7 +260,7 @@ def continue_orbits(family, y_guess, p_start, p_stop, *, method=None, ds: float 
 
     kernel = kernel_max  # events are located with the most harmonics used
     if h_min is not None:  # every point in the unknowns of that harmonic count
-        points = [p if p.u.size == _size(kernel) else kernel.convert(p) for p in points]
+        points = [kernel.convert(p) for p in points]
     bifurcations, peaks = [], []
     for index, k, kind in events:
         if kind == "peak":
@@ -322,11 +322,6 @@ class _Downgrade:
 
     def back_off(self):
         self.wait, self.since = min(2 * self.wait, 64), 0
-
-
-def _size(kernel) -> int:
-    d = int(np.asarray(kernel.scale).shape[0])
-    return kernel.method.size(d) + 1
 
 
 def _first_point(kernel, y_guess, p_start, normalise, samples=None):

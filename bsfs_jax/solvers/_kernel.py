@@ -280,6 +280,12 @@ def prefetch_corrector(family, vector_field, method, y_guess, p, *, n_periods: i
     return in_background(job)
 
 
+@functools.lru_cache(maxsize=64)
+def _with_harmonics(method, h: int):
+    """`method.with_harmonics(h)`, built once per (method, h) (host-side conversions)."""
+    return method.with_harmonics(int(h))
+
+
 @dataclasses.dataclass
 class Kernel:
     """Holds the static parts and calls the jitted corrector with array arguments."""
@@ -298,10 +304,30 @@ class Kernel:
     _fn: object = None
     _kept: bool = False
     _no_chord: object = None
+    # The method's host-side facts, read once: a method of an eqx Module is bound anew
+    # (a Module built) at every access, about 0.1-0.2 ms, a third of a harmonic-balance
+    # continuation's host time when read per corrector call.
+    _accurate_tol: object = dataclasses.field(default=None, init=False, repr=False)
+    _size: int = dataclasses.field(default=0, init=False, repr=False)
+    _width: int = dataclasses.field(default=0, init=False, repr=False)
+
+    def __post_init__(self):
+        d = int(np.asarray(self.scale).shape[0])
+        self._accurate_tol = self.method.accurate_tol()
+        size, width = getattr(self.method, "size", None), getattr(self.method, "width", None)
+        # (Only harmonic balance, whose harmonic count changes along a branch, has them.)
+        self._size = int(size(d)) + 1 if size is not None else 0
+        self._width = int(width(d)) if width is not None else d
 
     @property
     def accurate_tol(self):
-        return self.method.accurate_tol()
+        return self._accurate_tol
+
+    @property
+    def size(self) -> int:
+        """Unknowns of a corrected point, the method's and the parameter (harmonic
+        balance; 0 for a method of fixed size)."""
+        return self._size
 
     def correct(self, u_pred, tangent, ds_used: float = 0.0, chord=None) -> HostPoint:
         """Correct a predicted point; `chord` is a nearby point whose Newton matrix starts
@@ -343,13 +369,15 @@ class Kernel:
 
     def convert(self, point: HostPoint) -> HostPoint:
         """A point of another harmonic count in this kernel's unknowns (host side)."""
+        if point.u.size == self._size:
+            return point
         d = int(np.asarray(self.scale).shape[0])
-        old = self.method.with_harmonics((point.u.size - 1) // self.method.width(d) // 2)
+        old = _with_harmonics(self.method, (point.u.size - 1) // self._width // 2)
+        coefficients = self.method.from_coefficients
 
         def pad(v):
             v = np.asarray(v)
-            return np.concatenate([self.method.from_coefficients(old, v[:-1], d, xp=np),
-                                   v[-1:]])
+            return np.concatenate([coefficients(old, v[:-1], d, xp=np), v[-1:]])
 
         u, t = pad(point.u), pad(point.tangent)
         return dataclasses.replace(point, u=u, tangent=t / np.linalg.norm(t), jacobian=None,
