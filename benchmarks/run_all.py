@@ -18,7 +18,7 @@ HERE = Path(__file__).parent
 FILES_MODULE = Path(__file__).resolve().parent.parent / "bsfs_jax" / "_files.py"
 ORDER = ["bench_cold.py", "bench_simulate.py", "bench_sweep.py", "bench_orbits.py",
          "bench_identify.py", "bench_resonance.py", "bench_fit_solver.py", "bench_design.py"]
-RESULT_ORDER = ["cold.md", "ab.md", "ab_host.md", "ab_prefetch.md", "xla_level.md", "simulate.md", "b1_sweep.md", "gpu_b1.md", "orbits.md", "identify.md",
+RESULT_ORDER = ["cold.md", "ab.md", "ab_host.md", "ab_forecast.md", "ab_prefetch.md", "xla_level.md", "simulate.md", "b1_sweep.md", "gpu_b1.md", "orbits.md", "identify.md",
                 "resonance.md", "fit_solver.md", "design.md"]
 
 
