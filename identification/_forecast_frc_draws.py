@@ -67,7 +67,7 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
     # differ by point), and the nested batching traced and compiled more. On the bundled
     # worn drive at 100 N (3 points x 112 lanes): 3.6 s a call against 7.1 s, compiled in
     # 11.3 s against 12.8 s; the values the same to the followed peak's own noise (its
-    # frequency within 3e-4 Hz, median 1.3e-5 Hz, of an interval 0.5 Hz wide; the folds'
+    # frequency within 3e-4 Hz, median 1.3e-5 Hz, of an interval 0.45 Hz wide; the folds'
     # within 6e-9 Hz).
     return jax.lax.map(lambda point: one(*point), (hints, weights))
 

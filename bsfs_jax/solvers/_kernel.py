@@ -308,6 +308,8 @@ class Kernel:
     # (a Module built) at every access, about 0.1-0.2 ms, a third of a harmonic-balance
     # continuation's host time when read per corrector call.
     _accurate_tol: object = dataclasses.field(default=None, init=False, repr=False)
+    # unknowns of a point (the method's and the parameter) and per harmonic coefficient;
+    # 0 and d for a method of fixed size
     _size: int = dataclasses.field(default=0, init=False, repr=False)
     _width: int = dataclasses.field(default=0, init=False, repr=False)
 
@@ -322,12 +324,6 @@ class Kernel:
     @property
     def accurate_tol(self):
         return self._accurate_tol
-
-    @property
-    def size(self) -> int:
-        """Unknowns of a corrected point, the method's and the parameter (harmonic
-        balance; 0 for a method of fixed size)."""
-        return self._size
 
     def correct(self, u_pred, tangent, ds_used: float = 0.0, chord=None) -> HostPoint:
         """Correct a predicted point; `chord` is a nearby point whose Newton matrix starts
