@@ -77,3 +77,43 @@ def sin_turns(x):
         poly = c + z2 * poly
     return z + z * (z2 * poly)
 
+
+
+def solve_small(a, b):
+    """x with a x = b for small square systems, by Gaussian elimination with partial
+    pivoting written in plain array operations (no LAPACK call).
+
+    `a` (..., n, n) and `b` (..., n, m), real or complex, with broadcasting batch axes;
+    returns x (..., n, m). Meant for n up to about 12 inside `vmap` over many lines or
+    records: it compiles to elementwise code that XLA fuses, where `jnp.linalg.solve`
+    becomes LAPACK custom calls. Batched LAPACK calls on jaxlib's CPU backend (0.10) split
+    a large batch over XLA's intra-op thread pool and block a pool thread until the pieces
+    finish; two such calls running at once on a 2-thread pool wait on each other for ever
+    (the hang of a 4 s chirp's line screening). Differentiable (the pivot choice is
+    piecewise constant). A singular `a` gives inf or NaN, as a division by a zero pivot.
+    """
+    a = jnp.asarray(a)
+    b = jnp.asarray(b)
+    n = a.shape[-1]
+    dtype = jnp.result_type(a, b)
+    batch = jnp.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+    a = jnp.broadcast_to(a, batch + a.shape[-2:]).astype(dtype)
+    b = jnp.broadcast_to(b, batch + b.shape[-2:]).astype(dtype)
+    aug = jnp.concatenate([a, b], axis=-1)  # (..., n, n + m)
+    rows = jnp.arange(n).reshape((1,) * len(batch) + (n,))  # explicit ranks throughout
+    for k in range(n):
+        size = jnp.where(rows >= k, jnp.abs(aug[..., :, k]), -1.0)
+        p = jnp.argmax(size, axis=-1)  # (...,) the pivot row
+        row_k = aug[..., k, :]
+        row_p = jnp.take_along_axis(aug, p[..., None, None], axis=-2)[..., 0, :]
+        aug = jnp.where((rows == p[..., None])[..., None], row_k[..., None, :], aug)
+        aug = aug.at[..., k, :].set(row_p)
+        factor = jnp.where(rows > k, aug[..., :, k] / row_p[..., k, None], 0.0)
+        aug = aug - factor[..., :, None] * row_p[..., None, :]
+    x = [None] * n
+    for k in reversed(range(n)):
+        acc = aug[..., k, n:]
+        for j in range(k + 1, n):
+            acc = acc - aug[..., k, j, None] * x[j]
+        x[k] = acc / aug[..., k, k, None]
+    return jnp.stack(x, axis=-2)

@@ -24,6 +24,12 @@ FRF record (accelerance, (m/s^2)/N, e^{+i w t} convention)::
 `std_re`, `std_im` (standard errors of Re and Im) and `coherence` are optional; without the
 standard errors they are derived from the coherence and `n_averages` (`frf_variance`).
 Other `key = value` lines are kept in `meta` (reported, not used).
+
+Files as spreadsheets and acquisition software write them are read as well: a UTF-8
+byte-order mark and Windows line ends; semicolon- or tab-separated columns, with decimal
+commas where the separator is a semicolon or tab (European locales); and the acceleration
+in g (`acceleration_g`, times 9.80665 m/s^2) or in mm/s^2 (`acceleration_mm_s2`), converted
+to m/s^2 on reading.
 """
 
 from __future__ import annotations
@@ -40,15 +46,23 @@ from ._records import COLUMNS, RecordError, finish, format_meta_value, parse_val
 
 FRF_COLUMNS = ("frequency_hz", "re", "im")
 FRF_OPTIONAL = ("std_re", "std_im", "coherence")
+STANDARD_GRAVITY = 9.80665  # m/s^2 per g (ISO 80000-3)
+# Acceleration columns in other units: name -> factor to m/s^2.
+ACCELERATION_UNITS = {"acceleration_g": STANDARD_GRAVITY, "acceleration_mm_s2": 1e-3}
 
 
 def load_csv(path: Path):
     """A time `Record` or, with `# kind = frf`, an `FrfRecord`."""
     try:
-        lines = path.read_text().splitlines()
+        # utf-8-sig drops a byte-order mark; splitlines takes \r\n as well as \n
+        lines = path.read_bytes().decode("utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise RecordError(f"{path}: cannot read as text ({exc}).") from None
-    meta, header_line = _read_header(lines)
+        raise RecordError(f"{path}: cannot read as UTF-8 text ({exc}). Save the file as "
+                          "UTF-8 (CSV UTF-8 in a spreadsheet).") from None
+    header_line = _first_data_line(lines)
+    sep = _separator(lines[header_line]) if header_line is not None else ","
+    decimal_comma = sep != ","
+    meta = _read_header(lines, decimal_comma)
     kind = meta.get("kind", "time")
     if kind not in ("time", "frf"):
         raise RecordError(f"{path}: header 'kind = {kind}' is not 'time' or 'frf'.")
@@ -56,48 +70,93 @@ def load_csv(path: Path):
     if header_line is None:
         raise RecordError(f"{path}: no column header line found. After the '# key = value' "
                           f"lines, write the header '{','.join(required)}' and the data.")
-    names = _check_columns(path, lines[header_line], header_line + 1, required, optional)
+    units = ACCELERATION_UNITS if kind == "time" else {}
+    names = _check_columns(path, lines[header_line], header_line + 1, required, optional, sep,
+                           units)
     first = header_line + 2  # 1-based line number of the first data line
-    body = "\n".join(lines[header_line + 1:])
+    rows = lines[header_line + 1:]
+    body = "\n".join(rows)
+    if decimal_comma:
+        body = body.replace(",", ".")
     try:
-        data = np.loadtxt(io.StringIO(body), delimiter=",", ndmin=2)
+        data = np.loadtxt(io.StringIO(body), delimiter=sep, ndmin=2)
     except ValueError:
         data = None
     if data is None or data.shape[1] != len(names):
-        _locate_bad_row(path, lines[header_line + 1:], first, len(names))
+        _locate_bad_row(path, rows, first, len(names), sep, decimal_comma)
     cols = {n: data[:, j] for j, n in enumerate(names)}
     if kind == "frf":
         return _finish_frf_csv(path, cols, meta, first)
+    for name, factor in units.items():
+        if name in cols:
+            cols["acceleration_m_s2"] = cols.pop(name) * factor
+            meta.setdefault("acceleration_unit_read", name.removeprefix("acceleration_"))
     return finish(path, cols["time_s"], cols["force_n"], cols["acceleration_m_s2"], meta,
                   lambda idx: f"{path}:{first + idx}")
 
 
-def _read_header(lines):
-    meta: dict = {}
+def _first_data_line(lines):
+    """Index of the column-name line: the first that is neither blank nor a comment."""
     for i, line in enumerate(lines):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            return i
+    return None
+
+
+def _separator(line: str) -> str:
+    """The column separator of the column-name line: ';' or a tab where the line has one
+    and no comma, else ','."""
+    for sep in (";", "\t"):
+        if sep in line and "," not in line:
+            return sep
+    return ","
+
+
+def _read_header(lines, decimal_comma: bool = False):
+    """The `# key = value` lines above the column names, as a dict. With a decimal comma
+    (semicolon- or tab-separated files) a value such as 10240,5 is read as 10240.5."""
+    meta: dict = {}
+    for line in lines:
         stripped = line.strip()
         if not stripped:
             continue
-        if stripped.startswith("#"):
-            body = stripped.lstrip("#").strip()
-            if "=" in body:
-                key, value = body.split("=", 1)
-                meta[key.strip()] = parse_value(value)
-            continue
-        return meta, i
-    return meta, None
+        if not stripped.startswith("#"):
+            break
+        body = stripped.lstrip("#").strip()
+        if "=" in body:
+            key, value = body.split("=", 1)
+            value = value.strip()
+            if decimal_comma and value.count(",") == 1 and "." not in value:
+                candidate = value.replace(",", ".")
+                try:
+                    float(candidate)
+                    value = candidate
+                except ValueError:
+                    pass
+            meta[key.strip()] = parse_value(value)
+    return meta
 
 
-def _check_columns(path, line, lineno, required, optional):
-    names = [c.strip() for c in line.split(",")]
+def _check_columns(path, line, lineno, required, optional, sep=",", units=None):
+    names = [c.strip() for c in line.split(sep)]
     where = f"{path}:{lineno}"
+    units = units or {}
+    given = [n for n in names if n in units or n == "acceleration_m_s2"]
+    if len(given) > 1:
+        raise RecordError(f"{where}: {len(given)} acceleration columns "
+                          f"({', '.join(given)}); keep one.")
+    if given and given[0] in units:  # another unit: the SI column's place
+        names = ["acceleration_m_s2" if n == given[0] else n for n in names]
     allowed = (*required, *optional)
     unknown = [c for c in names if c not in allowed]
     if unknown:
         extra = f" (optional: {', '.join(optional)})" if optional else ""
+        also = (" (the acceleration may be acceleration_g or acceleration_mm_s2 instead)"
+                if units else "")
         raise RecordError(f"{where}: unknown column(s) {', '.join(repr(c) for c in unknown)}. "
                           f"The columns must be exactly {', '.join(required)}{extra} (SI "
-                          "units); rename or remove the others.")
+                          f"units{also}); rename or remove the others.")
     missing = [c for c in required if c not in names]
     if missing:
         raise RecordError(f"{where}: missing column(s) {', '.join(repr(c) for c in missing)}. "
@@ -107,15 +166,17 @@ def _check_columns(path, line, lineno, required, optional):
     if ("std_re" in names) != ("std_im" in names):
         raise RecordError(f"{where}: give both std_re and std_im (standard errors of Re and "
                           "Im) or neither.")
+    if given and given[0] in units:
+        names = [given[0] if n == "acceleration_m_s2" else n for n in names]
     return names
 
 
-def _locate_bad_row(path, rows, first_line, ncols):
+def _locate_bad_row(path, rows, first_line, ncols, sep=",", decimal_comma=False):
     for j, row in enumerate(rows):
         if not row.strip():
             raise RecordError(f"{path}:{first_line + j}: empty line inside the data. Remove it "
                               "(the loader does not skip lines silently).")
-        parts = row.split(",")
+        parts = (row.replace(",", ".") if decimal_comma else row).split(sep)
         if len(parts) != ncols:
             raise RecordError(f"{path}:{first_line + j}: {len(parts)} values, expected {ncols}. "
                               "Fix or remove this line.")

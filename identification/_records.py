@@ -223,8 +223,8 @@ def _check_time(path, t, fs, line_of):
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         i = bad[0] + 1
-        raise RecordError(f"{line_of(i)}: time_s = {t[i]!r} does not increase (previous "
-                          f"{t[i - 1]!r}). Time must increase strictly; fix the export.")
+        raise RecordError(f"{line_of(i)}: time_s = {float(t[i])!r} does not increase (previous "
+                          f"{float(t[i - 1])!r}). Time must increase strictly; fix the export.")
     dt_med = float(np.median(dt))
     jitter = np.abs(dt - dt_med) > TIME_JITTER_REL * dt_med
     bad = np.flatnonzero(jitter)

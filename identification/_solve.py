@@ -90,7 +90,9 @@ class TruncatedDoglegDescent(optx.DoglegDescent):
     max_step: float = 2.0  # longest step (scaled parameters: log-values, offsets in um)
 
     def query(self, y, f_info, state):
-        s0 = jnp.linalg.svd(f_info.jac.as_matrix(), compute_uv=False)[0]
+        # The reduced SVD, not compute_uv=False: on jaxlib's CPU backend (0.10) the latter
+        # reserves an m x m workspace for an m x n matrix (34 GB for a 65 536-row residual).
+        s0 = jnp.linalg.svd(f_info.jac.as_matrix(), full_matrices=False)[1][0]
         rcond = jnp.clip(self.floor / jnp.maximum(s0, 1e-300), 1e-13, 0.5)
         inner = optx.DoglegDescent(linear_solver=lx.SVD(rcond=rcond),
                                    root_finder=self.root_finder,

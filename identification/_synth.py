@@ -33,6 +33,7 @@ import numpy as np
 
 import bsfs_jax
 from bsfs_jax.model import accelerations
+from bsfs_jax.solvers import RESULTS, result_codes
 
 from ._parameters import require_x64
 from ._records import Record
@@ -148,18 +149,75 @@ def _antialias(order, cutoff, fs_high):
     return lambda x: sosfilt(sos, x)
 
 
+# Output samples (at the oversampled rate) per integration segment: a record of any length
+# is integrated as a loop over segments of this many samples, each by one compiled program
+# (its state carried from the last), so that neither the program nor its save array grows
+# with the record (60 s at 25.6 kHz, 4x oversampled, is 6.1 M samples).
+SEGMENT = 1 << 15
+
+
+def _window(forcing, k0: int, size: int):
+    """`forcing` for the segment whose first sample interval starts at oversampled sample
+    k0: a `SampledForce` cut to the samples that segment reads (the same interpolant
+    there), any other force as it is."""
+    if not isinstance(forcing, SampledForce):
+        return forcing
+    padded = forcing.padded
+    idx = np.minimum(np.arange(k0, k0 + size + 4), padded.shape[0] - 1)
+    return SampledForce(padded[idx], forcing.t0 + k0 * forcing.dt, forcing.dt)
+
+
 @eqx.filter_jit
-def _respond(system, forcing, ts, settings, y0):
-    res = bsfs_jax.integrate(bsfs_jax.vector_field, y0, (system, forcing), 0.0,
-                             ts[-1], ts, settings, throw=False)
+def _segment(system, forcing, y0, t_start, dt, n_valid, settings, size: int):
+    """One segment: from state y0 at t_start, the force and the worktable acceleration at
+    t_start + k dt, k = 1..size, integrated to t_start + n_valid dt (the samples past it
+    repeat that time); and the state there, and the solver's result."""
+    t1 = t_start + n_valid * dt
+    ts = jnp.minimum(t_start + dt * jnp.arange(1, size + 1), t1)
+    res = bsfs_jax.integrate(bsfs_jax.vector_field, y0, (system, forcing), t_start, t1, ts,
+                             settings, throw=False)
     x, v = res.ys[:, :3], res.ys[:, 3:]
     force = jax.vmap(forcing)(ts)
-    return force, accelerations(system, x, v, force)[:, 2], res.result
+    last = res.ys[jnp.maximum(n_valid - 1, 0)]
+    return force, accelerations(system, x, v, force)[:, 2], last, res.result
 
 
 @eqx.filter_jit
-def _respond_many(system, forcings, ts, settings, y0s):
-    return jax.vmap(lambda f, y0: _respond(system, f, ts, settings, y0))(forcings, y0s)
+def _segment_many(system, forcings, y0s, t_start, dt, n_valid, settings, size: int):
+    return jax.vmap(lambda f, y0: _segment(system, f, y0, t_start, dt, n_valid, settings,
+                                           size))(forcings, y0s)
+
+
+def _respond(system, forcings, y0s, n_hi: int, fs_hi: float, settings, progress=None):
+    """(force, acceleration) (lanes, n_hi) at k / fs_hi, k = 1..n_hi, and the worst solver
+    result, integrating segment by segment (`SEGMENT`). `progress(done, total)` is called
+    after each segment where given."""
+    size = min(SEGMENT, n_hi)
+    lanes = len(forcings)
+    force = np.empty((lanes, n_hi))
+    acc = np.empty((lanes, n_hi))
+    y = y0s
+    dt = 1.0 / fs_hi
+    for k0 in range(0, n_hi, size):
+        n_valid = min(size, n_hi - k0)
+        windows = [_window(fc, k0, size) for fc in forcings]
+        t_start = jnp.asarray(k0 * dt)
+        if lanes == 1:
+            f, a, last, result = _segment(system, windows[0], y[0], t_start, jnp.asarray(dt),
+                                          jnp.asarray(n_valid), settings, size)
+            f, a, last = f[None], a[None], last[None]
+        else:
+            stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *windows)
+            f, a, last, result = _segment_many(system, stacked, y, t_start, jnp.asarray(dt),
+                                               jnp.asarray(n_valid), settings, size)
+        force[:, k0:k0 + n_valid] = np.asarray(f)[:, :n_valid]
+        acc[:, k0:k0 + n_valid] = np.asarray(a)[:, :n_valid]
+        y = last
+        if np.any(np.atleast_1d(result_codes(result)) != result_codes(RESULTS.successful)):
+            break  # the caller's `check_result` names the failure
+        if progress is not None:
+            progress(k0 + n_valid, n_hi)
+    return force, acc, result
 
 
 CHIRP_TAPER = 0.02  # fraction of the record in each sin^2 taper of a chirp
@@ -170,7 +228,8 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
                sample_rate_hz: float = 10240.0, effects: TestEffects = TestEffects(),
                seed: int = 0, rtol: float = 1e-8, atol: float = 1e-12,
                excitation: str = "sine", start_hz: float | None = None,
-               stop_hz: float | None = None, sweep: str | None = None) -> Record:
+               stop_hz: float | None = None, sweep: str | None = None,
+               progress=None) -> Record:
     """A synthetic record of `duration_s` at `sample_rate_hz` (see the module docstring).
 
     `excitation`: "sine" (at `frequency_hz`, amplitude `force_n`), "chirp" (linear sweep
@@ -188,7 +247,7 @@ def synthesize(params, frequency_hz: float | None, force_n: float, *, duration_s
     return synthesize_many(params, frequency_hz, force_n, [seed], duration_s=duration_s,
                            sample_rate_hz=sample_rate_hz, effects=effects, rtol=rtol,
                            atol=atol, excitation=excitation, start_hz=start_hz,
-                           stop_hz=stop_hz, sweep=sweep)[0]
+                           stop_hz=stop_hz, sweep=sweep, progress=progress)[0]
 
 
 def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *,
@@ -196,12 +255,13 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
                     effects: TestEffects = TestEffects(), rtol: float = 1e-8,
                     atol: float = 1e-12, excitation: str = "sine",
                     start_hz: float | None = None, stop_hz: float | None = None,
-                    sweep: str | None = None) -> list:
+                    sweep: str | None = None, progress=None) -> list:
     """`synthesize` for several seeds at once: the same test repeated (new phases, noise and
     drift per seed), the simulations as lanes of one vmapped integration. Record k is the
     one `synthesize(..., seed=seeds[k])` makes: the same random draws in the same order, and
     the same response to the integration tolerance (vmapped lanes take their own steps;
-    tests/test_identification.py checks 1e-6 of the peak)."""
+    tests/test_identification.py checks 1e-6 of the peak). `progress(done, total)`, where
+    given, is called as the integration advances (oversampled samples done and in all)."""
     require_x64("identification.synthesize")
     if excitation not in ("sine", "chirp", "random"):
         raise ValueError(f"excitation must be 'sine', 'chirp' or 'random', got {excitation!r}")
@@ -242,22 +302,15 @@ def synthesize_many(params, frequency_hz: float | None, force_n: float, seeds, *
         if excitation == "chirp":
             meta.update(sweep="linear", taper_s=CHIRP_TAPER * n_rec / sample_rate_hz)
     n_hi = n_settle + n_rec * effects.oversample
-    ts = jnp.arange(1, n_hi + 1) / fs_hi
-    settings = bsfs_jax.SolverSettings(rtol=rtol, atol=atol, max_steps=4_000_000)
+    settings = bsfs_jax.SolverSettings(rtol=rtol, atol=atol, max_steps=1_000_000)
     from bsfs_jax.machine import as_system  # the system by one program, not op by op
     from bsfs_jax.solvers import check_result
 
     system = as_system(params)
 
     y0s = jnp.stack([_start_state(system, fc, sweep) for fc in forcings])
-    if len(forcings) == 1:
-        force, acc, result = _respond(system, forcings[0], ts, settings, y0s[0])
-        lanes = [(np.asarray(force), np.asarray(acc))]
-    else:
-        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *forcings)
-        force, acc, result = _respond_many(system, stacked, ts, settings, y0s)
-        force, acc = np.asarray(force), np.asarray(acc)
-        lanes = list(zip(force, acc))
+    force, acc, result = _respond(system, forcings, y0s, n_hi, fs_hi, settings, progress)
+    lanes = list(zip(force, acc))
     check_result(result, settings, f"synthetic record {what}")
     base = dict(meta, sample_rate_hz=float(sample_rate_hz),
                 speed_rpm=float(np.asarray(params.thermal.speed_rpm)),

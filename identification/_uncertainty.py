@@ -120,7 +120,7 @@ def _data_only_std(j_d, scale):
 
 def _noise_check(problem, r_d, j_d, info_inv):
     n = r_d.size
-    hat = np.trace(j_d @ info_inv @ j_d.T) if n else 0.0
+    hat = float(np.sum((j_d @ info_inv) * j_d)) if n else 0.0  # trace(J A J^T), no n x n
     dof = n - hat
     chi2 = float(r_d @ r_d)
     out = dict(chi2=chi2, n_data=int(n), effective_parameters=float(hat), dof=float(dof),

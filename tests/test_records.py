@@ -476,3 +476,62 @@ def test_sine_noise_is_read_between_the_harmonic_lines():
     v = [noise_variance(rng.normal(0, 1, 5120), 146.0, FS, 4096.0) for _ in range(100)]
     assert np.mean(v) == pytest.approx(1.0, abs=0.02)
     assert noise_variance(rng.normal(0, 1, 5120), 3.0, FS, 4096.0) is None
+
+
+# ---------------------------------------------------------------- records as software writes them
+
+
+def _spreadsheet(text, *, bom=True, crlf=True, semicolon=False):
+    """`text` as a spreadsheet's export writes it: UTF-8 BOM, Windows line ends, and in a
+    European locale semicolons with decimal commas."""
+    if semicolon:
+        out = []
+        for line in text.splitlines():
+            if line.startswith("#"):
+                key, _, value = line.partition("=")
+                out.append(f"{key}={value.replace('.', ',')}")
+            else:
+                out.append(line.replace(",", ";").replace(".", ","))
+        text = "\n".join(out) + "\n"
+    if crlf:
+        text = text.replace("\n", "\r\n")
+    return (b"\xef\xbb\xbf" if bom else b"") + text.encode()
+
+
+@pytest.mark.parametrize("semicolon", [False, True])
+def test_spreadsheet_exports_load_as_the_plain_file(tmp_path, semicolon):
+    t, force, acc = _signals()
+    plain = load_record(write_record_csv(tmp_path / "plain.csv", (t, force, acc), META))
+    path = tmp_path / "excel.csv"
+    path.write_bytes(_spreadsheet(_csv(), semicolon=semicolon))
+    rec = load_record(path)
+    assert rec.frequency_hz == plain.frequency_hz and rec.sample_rate_hz == FS
+    np.testing.assert_array_equal(rec.time, plain.time)
+    np.testing.assert_array_equal(rec.force, plain.force)
+    np.testing.assert_array_equal(rec.acceleration, plain.acceleration)
+
+
+@pytest.mark.parametrize("column, factor", [("acceleration_g", 9.80665),
+                                            ("acceleration_mm_s2", 1e-3)])
+def test_acceleration_in_other_units_is_converted(tmp_path, column, factor):
+    t, force, acc = _signals()
+    text = format_record_csv(t, force, acc / factor, META).replace("acceleration_m_s2", column)
+    rec = load_record(_write(tmp_path, text))
+    np.testing.assert_allclose(rec.acceleration, acc, rtol=1e-5, atol=1e-9 * factor)
+
+
+def test_two_acceleration_columns_are_refused(tmp_path):
+    t, force, acc = _signals()
+    text = format_record_csv(t, force, acc, META).replace(
+        "acceleration_m_s2", "acceleration_g,acceleration_m_s2")
+    with pytest.raises(RecordError, match="2 acceleration columns"):
+        load_record(_write(tmp_path, text))
+
+
+def test_messages_name_values_as_a_person_writes_them(tmp_path):
+    t, force, acc = _signals()
+    t = t.copy()
+    t[5] = t[4]
+    with pytest.raises(RecordError) as err:
+        load_record(_write(tmp_path, _csv(t=t)))
+    assert "np.float64" not in str(err.value) and "time_s = " in str(err.value)

@@ -285,3 +285,41 @@ def engine_settings(args) -> dict:
         raise CLIError("--kernel-checks runs the orbit checks on the kernel engine's "
                        "kernel: add --engine kernel (or run on a GPU with --engine auto)")
     return {"engine": engine, "chunk_size": args.chunk or (8192 if kernel else 32)}
+
+
+def say(message: str) -> None:
+    """A one-line status message on stderr, at once (what a command is doing now)."""
+    import sys
+
+    print(message, file=sys.stderr, flush=True)
+
+
+class Progress:
+    """`progress(done, total)` for long steps: a line "LABEL: P % (S s)" on stderr at most
+    every `every_s` seconds (and at the end), so that a terminal and a batch job's log both
+    show the step advancing. Silent where `enabled` is false (--no-progress,
+    BSFS_PROGRESS=0)."""
+
+    def __init__(self, label: str, enabled: bool = True, every_s: float = 5.0):
+        import time
+
+        self.label, self.enabled, self.every_s = label, enabled, every_s
+        self.start = self.last = time.monotonic()
+
+    def __call__(self, done, total) -> None:
+        import time
+
+        now = time.monotonic()
+        if not self.enabled or (now - self.last < self.every_s and done < total):
+            return
+        if done >= total and now - self.start < self.every_s:
+            return  # a quick step needs no report
+        self.last = now
+        say(f"{self.label}: {100.0 * done / max(total, 1):.0f} % ({now - self.start:.0f} s)")
+
+
+def progress_wanted(args) -> bool:
+    """Plain progress lines unless --no-progress or BSFS_PROGRESS=0 turn them off."""
+    import os
+
+    return not getattr(args, "no_progress", False) and os.environ.get("BSFS_PROGRESS") != "0"

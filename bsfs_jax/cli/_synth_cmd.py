@@ -85,11 +85,16 @@ def run_synth(args) -> int:
     if not out.parent.is_dir():
         raise ui.CLIError(f"--out '{out}': the folder '{out.parent}' does not exist")
     effects = idn.TestEffects(accel_snr_db=args.noise_db, force_snr_db=args.noise_db + 5.0)
+    n = int(round(args.duration * args.sample_rate))
+    ui.say(f"synth: simulating a {args.duration:g} s {args.excitation} record, {n} samples at "
+           f"{args.sample_rate:g} Hz ({effects.oversample}x oversampled for the anti-alias "
+           "filter)")
     try:
         rec = idn.synthesize(params, args.frequency, args.force, duration_s=args.duration,
                              sample_rate_hz=args.sample_rate, effects=effects, seed=args.seed,
                              excitation=args.excitation, start_hz=args.start,
-                             stop_hz=args.stop)
+                             stop_hz=args.stop,
+                             progress=ui.Progress("synth: simulated", ui.progress_wanted(args)))
     except ValueError as exc:
         raise ui.CLIError(str(exc)) from None
     rec.meta["source"] = "synthetic: bsfs synth"

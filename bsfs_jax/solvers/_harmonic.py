@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._numerics import solve_small
 from . import _harmonic_second as second
 from ._aft_layout import aft_jacobian_layout, chained_layout, derivative_blocks
 from ._half_range import series_half_range
@@ -311,8 +312,11 @@ class HarmonicBalance(AbstractOrbitMethod):
         def step(zz, _):
             r0, ra, rb = self._unpack(self.residual(vector_field, zz, args, period,
                                                     n_periods, scale), d)
-            dz = jnp.linalg.solve(blocks, (ra - 1j * rb)[..., None])[..., 0]
-            d0 = jnp.linalg.solve(b0, r0)
+            # Plain-array solves, not LAPACK: this runs vmapped over thousands of FRF
+            # lines, where two batched LAPACK calls deadlock jaxlib's CPU thread pool
+            # (`solve_small`).
+            dz = solve_small(blocks, (ra - 1j * rb)[..., None])[..., 0]
+            d0 = solve_small(b0, r0[..., None])[..., 0]
             new = zz - jnp.concatenate([d0, dz.real.reshape(-1), (-dz.imag).reshape(-1)])
             return new, new
 
