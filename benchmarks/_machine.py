@@ -28,4 +28,4 @@ def machine_info() -> dict:
 
 def machine_line(info: dict) -> str:
     return (f"Machine: {info['cpu']}, {info['cores']} cores; Python {info['python']}, "
-            f"jax {info['jax']}; {info['date_utc']} UTC.")
+            f"jax {info['jax']}. Date: {info['date_utc']} UTC.")

@@ -1,5 +1,5 @@
 """A change against the code before it: commands of `bench_cold.py`, cold and warm, each
-tree in turn (issue 19).
+tree in turn.
 
 A shared 2-core machine's speed drifts by 10-20 % within hours, so a C1 run (bench_cold.py)
 cannot tell a change's few seconds from the hour it ran in. This script runs the same
@@ -10,13 +10,15 @@ side with their medians and the ratio head / base.
 
     python benchmarks/bench_ab.py --base COMMIT [--only map,continue] [--rounds 2]
 
-The base tree is checked out into a temporary git worktree (removed afterwards). Writes
-benchmarks/results/ab.json and .md (a section of BENCHMARKS.md).
+The base tree is checked out into a temporary git worktree (removed afterwards). Prints the
+table and writes out/bench_ab/ab.json and ab.md: a comparison describes a change, so it is
+not kept among the benchmarks' current results (BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import subprocess
 import sys
@@ -27,7 +29,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _cli import ROOT, cold_warm_runs, write_result  # noqa: E402
+from _cli import ROOT, cold_warm_runs  # noqa: E402
 from bench_cold import COMMANDS, _identified  # noqa: E402
 
 
@@ -86,7 +88,7 @@ def main(argv=None) -> int:
     date = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
     result = dict(date=date, base=base, head=head + ("+" if dirty else ""),
                   rounds=args.rounds, commands=rows)
-    md = ["## C2: a change against the code before it, run alternately (issue 19)", "",
+    md = ["## A change against the code before it, run alternately", "",
           f"Machine: 2-core CPU; {date} UTC. `python benchmarks/bench_ab.py --base {base} "
           f"--only {args.only} --rounds {args.rounds}`: base {base}, head {result['head']}; "
           "each run a fresh process, cold (empty cache) then warm (the cache it filled); "
@@ -110,7 +112,12 @@ def main(argv=None) -> int:
             f"{runs(r['base'], 2)} (median {b[1]:.1f}) | {runs(r['head'], 2)} "
             f"(median {h[1]:.1f}) | {h[1] / b[1]:.2f} | {programs(r['base'])} | "
             f"{programs(r['head'])} |")
-    write_result("ab", result, "\n".join(md) + "\n")
+    out = ROOT / "out" / "bench_ab"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "ab.json").write_text(json.dumps(result, indent=2) + "\n")
+    (out / "ab.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    print(f"wrote {out}/ab.json and ab.md")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Time to first answer: every command of the README's table, cold and warm (issue 19).
+"""Time to first answer: every command of the README's table, cold and warm.
 
 Each command runs on its documented example as a fresh process (`python -c` running the
 `bsfs` entry point), first with an empty compilation cache (cold: a user's first run on a
@@ -8,7 +8,7 @@ XLA's executables and, where a program uses `bsfs_jax.cached_jit`, the traced pr
 Per run: wall seconds, XLA compile seconds and the number of compiled programs (jax's
 `/jax/core/compile/backend_compile_duration` events, recorded by the CLI when
 `BSFS_COMPILE_STATS` names a file), run seconds (wall - compile: tracing, execution, Python,
-files) and peak memory. The issue's targets on the 2-core CPU are checked per command:
+files) and peak memory. The targets on the 2-core CPU are checked per command:
 cold wall time, compilation at most 40 % of the cold wall time, the warm run at most 40 %
 of the cold one.
 
@@ -95,14 +95,15 @@ def _yes(v):
 
 def markdown(r) -> str:
     m = r["machine"]
-    lines = ["## C1: time to first answer, every command cold and warm (issue 19)", "",
+    lines = ["## C1 Time to first answer", "",
+             f"Command: `python benchmarks/bench_cold.py` (medians of {r['repeats']} "
+             "fresh process(es) per command and state).",
              f"Machine: {m.get('cpu', 'CPU')}, {m.get('cores', '?')} cores; jax "
-             f"{m.get('jax', '?')}; {r['date']}. `python benchmarks/bench_cold.py` "
-             f"(medians of {r['repeats']} fresh process(es) per command).", "",
+             f"{m.get('jax', '?')}. Date: {r['date']} UTC.", "",
              "Cold: empty compilation cache; warm: the cache the cold run filled. Compile: "
              "XLA's compile seconds (jax's compile events); run = wall - compile (tracing, "
              "execution, Python, files). Targets (2-core CPU): the cold wall time where "
-             f"the issue sets one, compilation <= {COMPILE_SHARE:.0%} of the cold wall, "
+             f"one is set, compilation <= {COMPILE_SHARE:.0%} of the cold wall, "
              f"warm <= {WARM_SHARE:.0%} of cold.", "",
              "| command | cold wall | compile | programs | run | warm wall | warm compile | "
              "peak memory | cold target | compile share | warm / cold |",
@@ -122,16 +123,10 @@ def markdown(r) -> str:
             f": {_yes(met['compile_share'])} | {c['warm_over_cold']:.2f}: "
             f"{_yes(met['warm'])} |")
     for c in r["commands"]:
-        if c.get("date"):  # a command measured again after the run (its own date)
-            b = c.get("before")
+        if c.get("date") and c["date"] != r["date"]:  # measured again after the run
             reps = c.get("repeats")
-            lines += ["", f"`{c['command']}` was measured on {c['date']}"
-                      + (f" (medians of {reps} fresh processes)" if reps else "")
-                      + ("" if not b else
-                         f"; before the changes below (the run of {b['date']}) it took "
-                         f"{b['cold_wall_s']:.1f} s cold and {b['warm_wall_s']:.1f} s warm "
-                         f"({b['compiles']:.0f} programs). The changes: {b['changes']}")
-                      + "."]
+            lines += ["", f"`{c['command']}` was measured on {c['date']} UTC"
+                      + (f" (medians of {reps} fresh processes)" if reps else "") + "."]
     lines += ["", "Exit codes other than 0 (4: identify did not converge) are listed in "
               "`benchmarks/results/cold.json`."]
     return "\n".join(lines) + "\n"

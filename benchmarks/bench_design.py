@@ -1,4 +1,4 @@
-"""D1: cost of all design sensitivities of one metric vs one metric evaluation (issue 5).
+"""D1: cost of all design sensitivities of one metric vs one metric evaluation.
 
 For each metric: the time of one evaluation (value only), of value + all gradients by
 implicit reverse-mode differentiation (>= 10 parameters), and of central finite
@@ -114,7 +114,8 @@ def main(argv=None):
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "design.json").write_text(json.dumps(data, indent=2) + "\n")
     lines = [
-        "## D1: design sensitivities vs one metric evaluation (issue 5)", "",
+        "## D1 Design sensitivities", "",
+        "Command: `python benchmarks/bench_design.py`.",
         machine_line(info), "",
         f"Default preset; orbit metrics at 400 Hz, 100 N; {len(DESIGN_PARAMETERS)} design "
         f"parameters ({', '.join(DESIGN_PARAMETERS)}). Medians of {repeats} runs after "

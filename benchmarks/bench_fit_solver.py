@@ -6,7 +6,7 @@ t = 1.96, 3, 4 and -1.96 standard errors, the others started on the conditional 
 method of `identification._solve.make_solver` runs with the fit's stopping test (remaining
 Gauss-Newton step < 1e-3 of its standard error) and at most 200 steps. Reported: steps per
 lane, whether the test was met at the returned point, and the rise of 2 x cost (profile).
-MINPACK (scipy, `tests/minpack_fit.py`, 240 evaluations as the old profile used) runs on the
+MINPACK (scipy, `tests/minpack_fit.py`, 240 evaluations) runs on the
 same held problems. Writes results/fit_solver.json and .md.
 
     python benchmarks/bench_fit_solver.py
@@ -99,9 +99,10 @@ def _fmt(steps, remaining, tol):
 
 def markdown(out):
     m = out["machine"]
-    lines = ["## F1: the fit's optimistix descent (issue 18)", "",
-             f"Machine: {m.get('cpu')}, {m.get('cores')} cores; jax {m.get('jax')}; "
-             f"{m.get('date_utc', '')}. `python benchmarks/bench_fit_solver.py`.", "",
+    lines = ["## F1 Fit solvers", "",
+             "Command: `python benchmarks/bench_fit_solver.py`.",
+             f"Machine: {m.get('cpu')}, {m.get('cores')} cores; jax {m.get('jax')}. "
+             f"Date: {m.get('date_utc', '')} UTC.", "",
              "Paper test (3 records, 7 parameters). Steps of each lane to the fit's stopping "
              "test (remaining Gauss-Newton step < 1e-3 of its standard error, at most 200 "
              "steps; ✗: not met at the returned point). Held problems: c_b or c_s held at t = "

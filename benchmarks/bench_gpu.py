@@ -1,4 +1,4 @@
-"""Benchmark B1 on an accelerator (issue 21): the per-point kernel against vmap and numba.
+"""Benchmark B1 on an accelerator: the per-point kernel against vmap and numba.
 
 B1: default preset at 5000 N, N frequencies evenly over 100-4000 Hz, each a cold start
 from rest, 200 transient periods then 64 stroboscopic samples, rtol 1e-8, atol 1e-12.

@@ -1,4 +1,4 @@
-"""Identification benchmark (issue 11, items 6 and 8): speed against scipy, and the bundled
+"""Identification benchmark: speed against scipy, and the bundled
 identification jobs end to end.
 
 Every timed part runs in a fresh process (this script re-invoked with `--part`, or the
@@ -30,7 +30,7 @@ compilation cache (`BSFS_CACHE_DIR` in a temporary folder), as on a fresh machin
      methods in a trial at the same accuracy (the kHz modes make the explicit ones take
      ~50 us steps): `other_integrators` gives the seconds per residual of DOP853, the
      previous version's integrator (one residual at the start, after the timed fit).
-   `speedup` = scipy's time to convergence / ours including compilation (the issue's
+   `speedup` = scipy's time to convergence / ours including compilation (the
    target: at least 100x); `speedup_warm` the same over the warm fit. `--quick` stops
    scipy early (`max_nfev=1`: a few residual evaluations) and extrapolates its time to
    convergence as seconds per residual x (1 + (p + 1) x our iterations), a lower bound for
@@ -50,7 +50,7 @@ compilation cache (`BSFS_CACHE_DIR` in a temporary folder), as on a fresh machin
    alone, compilation included), `fit_seconds_warm` (a second 3-start fit on the same
    Problem), FRF lines, convergence and the preloads.
 5. **`demo`**: the three identification commands of `make demo` in sequence, one fresh
-   compilation cache: seconds each and in all (the issue's budget for the whole demo is
+   compilation cache: seconds each and in all (the budget for the whole demo is
    two minutes).
 6. **`ours_cached`**: `ours` again in a fresh process whose persistent compilation cache an
    earlier process filled (what every `bsfs` run after the first on a machine sees; the
@@ -529,11 +529,12 @@ def markdown(r) -> str:
                      for k, v in e["compliance"].items())
     pre = pl["preloads"]
     lines = [
-        "# Identification (issues 11 and 18)",
+        "## I1 Identification",
         "",
-        f"Machine: {m['cpu']}, {m['cores']} cores; Python {m['python']}, jax {m['jax']}; "
-        f"{m['date_utc']} UTC; load average {m['load_average_at_start'][0]:.1f} at start; "
-        f"{kind}; {reps}. `python benchmarks/bench_identify.py` (`--quick`: a short check). "
+        "Command: `python benchmarks/bench_identify.py` (`--quick`: a short check).",
+        f"Machine: {m['cpu']}, {m['cores']} cores; Python {m['python']}, jax {m['jax']}. "
+        f"Date: {m['date_utc']} UTC; load average {m['load_average_at_start'][0]:.1f} at "
+        f"start; {kind}; {reps}. "
         "Every time is a fresh process, compilation included unless marked warm; CLI runs "
         "start from an empty compilation cache.",
         "",
@@ -613,7 +614,7 @@ def markdown(r) -> str:
         + ", ".join(f"{c.split()[1]} {t:.1f} s" for c, t in zip(dm["commands"], dm["seconds"]))
         + " |",
         "",
-        "**Time to answer** (issue 18; fresh processes: cold = empty compilation cache, warm "
+        "**Time to answer** (fresh processes: cold = empty compilation cache, warm "
         "= the cache the cold run filled; compile = XLA compile seconds from jax's compile "
         "events, run = wall - compile, which includes imports, tracing and plotting):",
         "",

@@ -1,5 +1,5 @@
 """O1: FRCs by harmonic-balance vs shooting continuation vs a brute-force sweep, and the
-cost of the frc_peak design gradient (issue 9, section 5).
+cost of the frc_peak design gradient.
 
 (A) default preset, 100 N, 1000-1250 Hz (two folds near 1119-1120 Hz); (B) cold preset,
 5000 N, 900-1500 Hz (contact loss; HB needs many harmonics). For each FRC:
@@ -259,7 +259,8 @@ def fmt_list(xs, f="{:.4f}"):
 
 def markdown(data):
     q = " (quick run: FRC (A) only, 1 repeat)" if data["quick"] else ""
-    lines = ["## O1: periodic orbits: harmonic balance vs shooting continuation (issue 9)", "",
+    lines = ["## O1 Periodic orbits", "",
+             "Command: `python benchmarks/bench_orbits.py`.",
              machine_line(data["machine"]) + f" BLAS threads: {data['blas_threads']}; load "
              f"average at start {', '.join('%.1f' % x for x in data['load_average_at_start'])}"
              " (shared machine: compare ratios, not seconds).", "",

@@ -1,4 +1,4 @@
-"""Benchmark S1 (issue 2): `simulate` vs scipy solve_ivp (RK45), and the cold/warm CLI.
+"""Benchmark S1: `simulate` vs scipy solve_ivp (RK45), and the cold/warm CLI.
 
 S1: 200 periods at 500 Hz and 5000 N on the default preset, rtol 1e-8, atol 1e-12, both
 saving the same 64 points per period. JAX is timed after compilation (median of repeats);
@@ -107,8 +107,9 @@ def main():
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "simulate.json").write_text(json.dumps(result, indent=2))
     md = [
-        "## S1/S2: single simulation and the CLI (issue 2)",
+        "## S1 One simulation",
         "",
+        "Command: `python benchmarks/bench_simulate.py`.",
         machine_line(info),
         "",
         f"S1: {s1['case']}.",

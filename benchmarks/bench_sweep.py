@@ -1,6 +1,6 @@
 """Benchmark B1: a cold frequency sweep of the BSFS, JAX vs numba Dormand-Prince vs scipy.
 
-B1 (issue 3): default preset at 5000 N; 240 frequencies evenly over 100-4000 Hz; a cold
+B1: default preset at 5000 N; 240 frequencies evenly over 100-4000 Hz; a cold
 start from rest at each; 200 transient periods, then 64 stroboscopic samples;
 rtol 1e-8, atol 1e-12. Side by side in one run:
 
@@ -13,7 +13,7 @@ rtol 1e-8, atol 1e-12. Side by side in one run:
   numba step counts, scaled by scipy/numba's step ratio on one complete point);
 - continued mode (20 transient periods per point after the first) producing the same
   diagram, checked point by point against the cold sweep;
-- ours, verified (issue 10): `sweep(..., verify=VerifySettings())` with 16 recorded
+- ours, verified: `sweep(..., verify=VerifySettings())` with 16 recorded
   periods: per-point minimum transient from the slowest linear decay rate, shooting
   checks of the periodic orbit and its Floquet multipliers, continuation blocks where no
   orbit is found; timed after a warm-up run on the same values (compile listed apart);
@@ -282,7 +282,7 @@ def main():
           f"same class at {labels_same}",
           flush=True)
 
-    # --- ours, verified (issue 10): minimum transient + orbit checks, 16 periods --------
+    # --- ours, verified: minimum transient + orbit checks, 16 periods --------
     import inspect
     from collections import Counter
 
@@ -504,10 +504,11 @@ def main():
         f"| {r['seconds']:.2f} | {r['steps']} | {r['seconds'] / r['steps'] * 1e6:.2f} | "
         f"{'1 (best)' if e == best else '%.2f x best' % (r['seconds'] / ours_s)} |"
         for e, r in runs.items())
-    md = f"""# B1: cold frequency sweep of the BSFS ({num} points)
+    md = f"""## B1 Cold frequency sweep
 
-Date: {res['date']}. Machine: {res['machine']['cpu']}, {res['machine']['cores']} cores
-(shared; load average at start {', '.join('%.1f' % x for x in res['machine']['load_average_at_start'])}).
+Command: `python benchmarks/bench_sweep.py`.
+Machine: {res['machine']['cpu']}, {res['machine']['cores']} cores. Date: {res['date']}
+(shared machine; load average at start {', '.join('%.1f' % x for x in res['machine']['load_average_at_start'])}).
 Default preset, {force:g} N, {num} frequencies evenly over 100-4000 Hz, cold start from rest,
 {n_tr} transient periods + {n_samp} stroboscopic samples, rtol {rtol:g}, atol {atol:g}.
 Median of {repeats} run(s); compile/warm-up excluded and listed.
@@ -533,7 +534,7 @@ Median of {repeats} run(s); compile/warm-up excluded and listed.
   {res['targets']['not_slower_than_numba']}; continued >=5x cold brute force:
   {res['targets']['continued_5x_vs_cold_brute_force']}; < 2 GB: {res['targets']['rss_below_2gb']}.
 
-Verified labels (issue 10):
+Verified labels:
 - Verified run: {ver_s:.2f} s (median of {repeats}); compile ~{compile_v:.1f} s (warm-up run
   {warm_v:.1f} s); its sampling sweep alone {ver_sweep_s:.2f} s, the rest is verification.
 - Verified points by label: {fmt_counts(v_counts)}; unresolved {v_unresolved}; failed {v_failed}.

@@ -1,4 +1,4 @@
-"""XLA's backend optimisation level for every program, cold and warm (issue 19).
+"""XLA's backend optimisation level for every program, cold and warm.
 
 A measured question: would compiling every program at a lower LLVM optimisation level
 (`XLA_FLAGS=--xla_backend_optimization_level=1` or `0`; the default is 2) shorten a cold
@@ -34,11 +34,12 @@ DEFAULT_ONLY = "continue,sweep,map,sensitivity"
 
 def markdown(r) -> str:
     m = r["machine"]
-    lines = ["## C3: XLA's backend optimisation level for every program (issue 19)", "",
+    lines = ["## C2 XLA optimisation level", "",
+             "Command: `python benchmarks/bench_xla_level.py` (one fresh process per run; "
+             "per command the levels one after another, each cold then warm).",
              f"Machine: {m.get('cpu', 'CPU')}, {m.get('cores', '?')} cores; jax "
-             f"{m.get('jax', '?')}; {r['date']}; commit {r.get('commit', '?')}. "
-             "`python benchmarks/bench_xla_level.py` (one fresh process per run; per "
-             "command the levels one after another, each cold then warm).", "",
+             f"{m.get('jax', '?')}. Date: {r['date']} UTC; commit {r.get('commit', '?')}.",
+             "",
              "| command | level | cold wall | compile | programs | warm wall | warm run |",
              "|---|---|---|---|---|---|---|"]
     for row in r["rows"]:

@@ -1,4 +1,4 @@
-"""Where a step of the per-lane kernel goes (issue 21): resources and field variants.
+"""Where a step of the per-lane kernel goes: resources and field variants.
 
 For each variant of the right-hand side, the kernel (`solvers.integrate_lanes`) is traced,
 compiled and timed on a short B1 horizon (the same points, 5000 N, 100-4000 Hz, cold from

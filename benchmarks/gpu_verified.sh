@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 21's verified cases on a lent GPU (the `device` tool), one call:
+# The verified GPU cases on a lent GPU (the `device` tool), one call:
 #   1. a verified B1 sweep of 2048 points (kernel engine, wide verification, settle
 #      blocks), first call and second call, with the verification's phases (bench_gpu.py
 #      case 5): the orbit checks vmapped, then on the kernel (compile events to

@@ -1,6 +1,6 @@
 """How large the per-lane kernels' programs are, lowered for CUDA on any machine.
 
-The orbit checks on the kernel (issue 21) first carried the whole monodromy matrix on a
+The orbit checks on the kernel first carried the whole monodromy matrix on a
 lane (6 + 36 components); on an H200 XLA had not finished building that program after
 260 s, while the sweep's 6-component lane compiles in seconds. Compile time is only
 measurable on a GPU, but the lowered program's size can be read anywhere (jax lowers a

@@ -2,14 +2,18 @@
 
 Usage: python benchmarks/run_all.py [--quick] [--only NAME ...] [--assemble-only | --check]
 
-BENCHMARKS.md is only ever written by `assemble()` (the header below, then each result's
-Markdown in RESULT_ORDER); `--check` exits 1 with a one-line summary when the committed
-BENCHMARKS.md differs from that assembly (tests/test_status.py checks the same). After a
-run, `python scripts/status.py` (`make status`) puts the new numbers in README's status table.
+Each benchmark script writes its current measurement to benchmarks/results/<name>.json
+(the data) and <name>.md (one section: its command, machine, date and table); a new run
+replaces both. BENCHMARKS.md is only ever written by `assemble()`: a header, a contents
+list, then each result's section in RESULT_ORDER. `--check` exits 1 with a one-line
+summary when the committed BENCHMARKS.md differs from that assembly (tests/test_status.py
+checks the same). After a run, `python scripts/status.py` (`make status`) puts the new
+figures in README's status table.
 """
 
 import argparse
 import importlib.util
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -18,28 +22,49 @@ HERE = Path(__file__).parent
 FILES_MODULE = Path(__file__).resolve().parent.parent / "bsfs_jax" / "_files.py"
 ORDER = ["bench_cold.py", "bench_simulate.py", "bench_sweep.py", "bench_orbits.py",
          "bench_identify.py", "bench_resonance.py", "bench_fit_solver.py", "bench_design.py"]
-RESULT_ORDER = ["cold.md", "ab.md", "ab_host.md", "ab_forecast.md", "ab_prefetch.md", "xla_level.md", "simulate.md", "b1_sweep.md", "gpu_b1.md", "orbits.md", "identify.md",
-                "resonance.md", "fit_solver.md", "design.md"]
+RESULT_ORDER = ["cold.md", "xla_level.md", "simulate.md", "b1_sweep.md", "gpu_b1.md",
+                "orbits.md", "identify.md", "resonance.md", "fit_solver.md", "design.md"]
+
+
+def slug(heading: str) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation other than
+    hyphens dropped, spaces as hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def _results() -> list[Path]:
+    """The result files that make up BENCHMARKS.md: `--quick` checks (`*_quick.md`) and
+    partial runs (`*_partial.md`) are not results."""
+    return sorted((p for p in (HERE / "results").glob("*.md")
+                   if not p.stem.endswith(("_quick", "_partial"))),
+                  key=lambda p: (RESULT_ORDER.index(p.name) if p.name in RESULT_ORDER else 99,
+                                 p.name))
 
 
 def assemble() -> str:
+    sections = []
+    for path in _results():
+        text = path.read_text().strip()
+        # Each result file is one section of BENCHMARKS.md, its title a level-2 heading.
+        lines = [("#" + ln if ln.startswith("# ") else ln) for ln in text.splitlines()]
+        sections.append(lines)
+    titles = [next((ln[3:] for ln in lines if ln.startswith("## ")), None)
+              for lines in sections]
     parts = [
         "# Benchmarks",
         "",
-        "Produced by `python benchmarks/run_all.py` (each script also runs alone; `--quick` for a",
-        "short check). Times are medians over repeats after compilation unless stated; ratios are",
-        "the peer's time over ours. Shared 2-core machines drift, so compare ratios, not seconds.",
+        "The current measurement of each benchmark: its command, machine and date, then its",
+        "table. A new run replaces its section (`python benchmarks/run_all.py`, or one script",
+        "alone; `--quick` for a short check that is not kept). Times are medians after",
+        "compilation unless a table says otherwise; ratios are the peer's time over ours.",
+        "Two-core machines of different makes, and one machine from hour to hour, differ by",
+        "tens of per cent: compare within a table. To compare a change with the code before",
+        "it, run both in alternation: `python benchmarks/bench_ab.py --base COMMIT`.",
         "",
     ]
-    # `--quick` results (b1_sweep_quick.md) and `--only` runs of bench_cold.py (cold_partial.md) are checks, not results.
-    found = sorted((p for p in (HERE / "results").glob("*.md")
-                    if not p.stem.endswith(("_quick", "_partial"))),
-                   key=lambda p: (RESULT_ORDER.index(p.name) if p.name in RESULT_ORDER else 99,
-                                  p.name))
-    for path in found:
-        text = path.read_text().strip()
-        # Each result file is one section of BENCHMARKS.md.
-        lines = [("#" + ln if ln.startswith("# ") else ln) for ln in text.splitlines()]
+    parts += [f"- [{t}](#{slug(t)})" for t in titles if t] + [""]
+    for lines in sections:
         parts += ["\n".join(lines), ""]
     return "\n".join(parts)
 

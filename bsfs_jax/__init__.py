@@ -2,36 +2,18 @@
 
 Model: Yang et al., "Nonlinear dynamic characteristics of ball screw feed system under
 thermal deformation", Nonlinear Dynamics (2022), as fixed by physics.md. All quantities
-are SI inside the package; the library never changes `jax.config` (enable 64-bit floats
-at your entry point: `jax.config.update("jax_enable_x64", True)`).
+are SI inside the package. Importing it (or any of its modules) changes no environment
+variable, no `jax.config` value and no XLA flag: enable 64-bit floats at your entry point
+(`jax.config.update("jax_enable_x64", True)`), and call `use_fast_compilation()` there for
+the `bsfs` command's shorter compilations.
 """
 
-import os
 from typing import TYPE_CHECKING
 
-# Equinox's runtime checks (diffrax's `saveat.ts` order, lineax, optimistix) default to a
-# host callback that raises; a program with a host callback is never written to jax's
-# persistent compilation cache, so every run recompiled every integration. Here a failed
-# check gives NaN instead (the package maps every solver's result to `RESULTS` and checks
-# it itself; nothing relies on those raises). Set EQX_ON_ERROR=raise before importing to
-# keep equinox's default. Read by equinox at its import: this must come first.
-os.environ.setdefault("EQX_ON_ERROR", "nan")
-
-# XLA's CPU compiler with its earlier fusion emitters (`--xla_cpu_use_fusion_emitters=
-# false`): measured on the 2-core machine, the test suite's XLA seconds 1750 -> 1307 and a
-# cold `bsfs sensitivity` 29.5 -> 24.6 s (BENCHMARKS.md C2), the same results to rounding;
-# the few programs that run long enough for the newer emitters' faster code to pay ask for
-# them themselves (`cached_jit(..., runs_long=True)`). XLA reads XLA_FLAGS when jax starts its
-# backend (a process that has computed with jax already keeps its flags). Name the option
-# in XLA_FLAGS yourself to choose, or set BSFS_XLA_DEFAULTS=0 to leave XLA's defaults.
-_XLA_DEFAULT = "--xla_cpu_use_fusion_emitters=false"
-if (os.environ.get("BSFS_XLA_DEFAULTS", "1") != "0"
-        and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "")):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_XLA_DEFAULT}".strip()
-
-from ._lazy import lazy_names  # noqa: E402 - after the environment variable
+from ._lazy import lazy_names
 
 if TYPE_CHECKING:
+    from ._host import use_fast_compilation as use_fast_compilation
     from ._programs import cached_jit as cached_jit
     from .machine import Modes as Modes
     from .machine import Trajectory as Trajectory
@@ -59,6 +41,7 @@ if TYPE_CHECKING:
     from .solvers import integrate as integrate
 
 _LAZY = {
+    "use_fast_compilation": "._host",
     "cached_jit": "._programs",
     "Modes": ".machine",
     "Trajectory": ".machine",
@@ -87,7 +70,6 @@ _LAZY = {
 }
 
 __all__ = list(_LAZY)
-
 
 
 def _version() -> str:

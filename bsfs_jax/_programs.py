@@ -20,7 +20,9 @@ A later process deserialises the program and compiles it, which jax's persistent
 answers from disk. It is used only where jax's persistent cache is on (the CLI turns it on,
 `cli._common.setup_jax`); otherwise, and wherever a program cannot be exported (a static
 argument without a stable text, an output that is not built of tuples, lists and dicts of
-arrays, an export error), the call is plain `filter_jit`, so results never depend on it.
+arrays, a host callback such as equinox's runtime checks make under its default
+`EQX_ON_ERROR=raise`, an export error), the call is plain `filter_jit`, so results never
+depend on it.
 A stale or unreadable file is exported again and replaced (written atomically).
 
 Prefetches (`cached_jit`'s `prefetch`) run on the background thread of `_prefetch`.
@@ -185,9 +187,10 @@ def _export(fn, static, treedef, leaves):
 #: XLA's options for `cached_jit(..., fast_compile=True)` (module docstring).
 FAST_COMPILE = {"xla_backend_optimization_level": 1}
 #: XLA's options for `cached_jit(..., runs_long=True)`: the CPU compiler's newer fusion
-#: emitters, which bsfs turns off for every other program (`bsfs_jax/__init__.py`): they
-#: take longer to compile and give faster code, which pays only where a program runs for
-#: seconds (a continuation's corrector called a thousand times).
+#: emitters, which the `bsfs` command (and `use_fast_compilation`, `bsfs_jax/_host.py`)
+#: turns off for every other program: they take longer to compile and give faster code,
+#: which pays only where a program runs for seconds (a continuation's corrector called a
+#: thousand times).
 RUNS_LONG = {"xla_cpu_use_fusion_emitters": True}
 
 

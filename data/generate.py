@@ -37,7 +37,7 @@ WORN = [("preload-loss", f"sine_{f:04d}hz_100n", float(f), 100.0, 2000.0, 0.5)
         for f in (150, 400, 700, 1700, 2500)]
 CHIRP = ("preload-loss", "chirp_50-2500hz_5n", 5.0, 2000.0, 1.0, 50.0, 2500.0)
 # A drive with smaller preload losses (data/resonance.toml; first resonance 1128 Hz at
-# 2000 r/min) tested through its resonance (issue 24): stepped sines at 100 N from 150 Hz
+# 2000 r/min) tested through its resonance: stepped sines at 100 N from 150 Hz
 # up, two of them within -5 % / +3 % of the resonance, two sines at 3000 N and a chirp.
 RESONANCE = [("resonance", f"sine_{f:04d}hz_{n:.0f}n", float(f), float(n), 2000.0, 0.5)
              for f, n in ((150, 100), (400, 100), (700, 100), (950, 100), (1070, 100),

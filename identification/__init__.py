@@ -39,6 +39,8 @@ from ._forecast_run import forecast_modal as forecast_modal
 from ._frf import FrfRecord as FrfRecord
 from ._frf import estimate_frf as estimate_frf
 from ._frf import frf_variance as frf_variance
+from ._lines import MAX_LINES as MAX_LINES
+from ._lines import merge_lines as merge_lines
 from ._load import load_record as load_record
 from ._load import load_records as load_records
 from ._measurement import HarmonicData as HarmonicData

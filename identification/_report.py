@@ -13,6 +13,7 @@ import bsfs_jax
 from ._choice import line_bound
 from ._fit import FitResult, fit, gate_steady_state
 from ._groups import sine_variance
+from ._lines import MAX_LINES, merge_factor, merge_lines
 from ._measurement import HarmonicData, harmonic_analysis
 from ._misfit import gate_record_misfit
 from ._parameters import DEFAULT_FIT, require_x64
@@ -79,7 +80,8 @@ def measurement_data(record):
 
 def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
              starts: int = 3, seed: int = 0, max_steps: int = 100, priors="default",
-             profile="auto", on_models=None) -> IdentificationResult:
+             profile="auto", on_models=None, say=None,
+             max_lines: int | None = MAX_LINES) -> IdentificationResult:
     """Load records (paths or loaded records), fit, and compute the uncertainty.
 
     `priors`: "default" (each parameter's default prior, see `FIT_PARAMETERS`), a dict
@@ -88,18 +90,42 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     record uses a linear model (with periodic-orbit records each profile point costs a
     re-fit of orbits; the report then says the check was skipped). `on_models(problem)`:
     called as `fit`'s, after this function has queued its own background compilations
-    (the CLI queues the loading of its figures' modules behind them).
+    (the CLI queues the loading of its figures' modules behind them). `say(text)`, where
+    given, is told each step as it starts or ends (records read, lines kept, models
+    chosen, fit, intervals): a long record's run is never silent. `max_lines`: an FRF with
+    more lines is fitted on runs of adjacent lines merged to at most this many
+    (`merge_lines`; None or 0: every line as it is).
     """
     require_x64("identification.identify")
     from ._load import load_records
 
+    say = say or (lambda text: None)
     t0 = time.perf_counter()
     loaded = [r for r in records if not isinstance(r, str | Path)]
     paths = [r for r in records if isinstance(r, str | Path)]
+    if paths:
+        say(f"reading {len(paths)} record(s): {', '.join(Path(p).name for p in paths)}")
     loaded += load_records(paths) if paths else []
-    data = [measurement_data(r) for r in loaded]
+    for r in loaded:
+        if hasattr(r, "summary"):
+            say(f"read {r.summary()}")
+    data = []
+    for r in loaded:
+        data.append(measurement_data(r))
+        if is_frf(data[-1]) and not is_frf(r):
+            say(f"FRF estimated: {data[-1].summary()}")
+        k = merge_factor(data[-1].frequency_hz.size, max_lines) if is_frf(data[-1]) else 1
+        if k > 1:
+            data[-1] = merge_lines(data[-1], k)
+            d = data[-1]
+            say(f"{d.name}: {int(d.meta['merged_from'])} lines merged in runs of {k} to "
+                f"{d.frequency_hz.size} (--max-lines {max_lines}; each run at most "
+                f"{d.meta['merged_width_hz']:.3g} Hz wide)")
     prior = bsfs_jax.preset() if prior is None else prior
+    say(f"choosing the measurement model per record ({len(data)} record(s))")
     problem = Problem(data, prior, fit_names, model=model, priors=priors)
+    say(_choice_text(problem))
+    say(f"fitting {len(fit_names)} parameter(s) from {starts} start(s)")
     def models_chosen(chosen):
         prefetch_check(chosen)
         if on_models is not None:
@@ -111,6 +137,7 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
                  on_models=models_chosen)
     result, branch = check_model(result)
     problem = result.problem  # the models as chosen at the estimate
+    say(f"fit done ({time.perf_counter() - t0:.0f} s); computing the uncertainty")
     unc = uncertainty(result)
     lin = None
     if profile == "auto":
@@ -120,9 +147,23 @@ def identify(records, prior=None, fit_names=DEFAULT_FIT, *, model: str = "auto",
     else:
         unc.noise["profile"] = "checked" if profile else "skipped (profile off)"
     if profile:
+        say("profile-likelihood intervals where the linearised ones are doubtful")
         unc, lin = profile_intervals(result, unc)
     return IdentificationResult(problem, result, unc, data, time.perf_counter() - t0, lin,
                                 branch)
+
+
+def _choice_text(problem) -> str:
+    """One line: the model per record and the FRF lines kept."""
+    counts: dict = {}
+    for m in problem.models:
+        counts[m] = counts.get(m, 0) + 1
+    text = "models: " + ", ".join(f"{n} {m}" for m, n in counts.items())
+    for i, d in enumerate(problem.data):
+        if is_frf(d):
+            out = int(np.sum(problem.frf_left_out.get(i, False)))
+            text += f"; {d.name}: {d.frequency_hz.size - out} of {d.frequency_hz.size} lines kept"
+    return text
 
 
 # An orbit record whose model truncation error (H against 2H harmonics) exceeds this many

@@ -1,4 +1,4 @@
-"""Coverage study of the identification's 95 % intervals (issue 11, item 5).
+"""Coverage study of the identification's 95 % intervals (docs/COVERAGE.md).
 
 For N seeded replicates, the records of the bundled preload-loss test (data/generate.py:
 five 100 N stepped sines at 150, 400, 700, 1700 and 2500 Hz, 0.5 s each, and one 5 N burst

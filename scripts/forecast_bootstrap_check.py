@@ -1,4 +1,4 @@
-"""Diagnostic (issue 20): the quadratic model's median shift, over Gaussian draws and over
+"""Diagnostic of the forecast: the quadratic model's median shift, over Gaussian draws and over
 data-domain bootstrap refits, against the exact refits.
 
 The bundled preload-loss test is identified (PRELOAD_FIT); its fit data get Gaussian

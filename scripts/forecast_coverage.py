@@ -1,4 +1,4 @@
-"""Coverage study of the forecast's 95 % intervals (issue 20, item 3).
+"""Coverage study of the forecast's 95 % intervals (docs/COVERAGE.md).
 
 For N seeded replicates of the bundled preload-loss test (the records of
 `scripts/coverage_study.py`: synthesised afresh from the truth, data/worn.toml, with new

@@ -1,5 +1,5 @@
 """The forecast's coverage pooled over every replicate set run with the same interval
-method (issue 20, item 3; docs/COVERAGE.md, sections "Session 12" and "Session 13").
+method (docs/COVERAGE.md, "The forecast").
 
 The coverage rows in docs/data come from runs of `scripts/forecast_coverage.py` at
 different commits. A quantity is pooled only over the sets whose code computed it the
@@ -7,17 +7,16 @@ same way:
 
 - modal quantities and preloads (delta, the model over the refits): replicates 0-399;
 - the FRC quantities (the quadratic model over the refits, floored at the delta
-  half-width since session 11): 0-199 and 300-399 (200-299 ran before the floor);
+  half-width): 0-199 and 300-399 (200-299 ran before the floor);
 - the first joint's lift-off (`liftoff_force_n`, the bearing's; the search itself at
-  each refit since session 14, section "Session 14"): 0-199, the lift-off pass
-  `--part liftoff` run again at that commit (before, the quadratic model with the
-  carried Hessian, over 0-199 and 300-399);
-- the second joint's (`liftoff_force_nut_n`, on the orbits since session 12): 0-199
-  (the same pass; its method is unchanged);
-- the FRC's peak and folds (the model itself at each refit since session 13, section
-  "Session 13"): replicates 0-99 run again at that commit, and 100-199 at session 14's
-  (section "Session 14"). These sets repeat seeds of 0-199, so they contribute those
-  four quantities only, and 0-199 no longer does.
+  each refit): 0-199, the lift-off pass `--part liftoff` run again at that commit
+  (before, the quadratic model with the carried Hessian, over 0-199 and 300-399);
+- the second joint's (`liftoff_force_nut_n`, searched on the orbits): 0-199 (the same
+  pass; its method is unchanged);
+- the FRC's peak and folds (the model itself at each refit): replicates 0-99 run again
+  with that method, and 100-199 with the lift-off also searched at each refit. These sets
+  repeat seeds of 0-199, so they contribute those four quantities only, and 0-199 no
+  longer does.
 
     python scripts/forecast_coverage_pool.py            # the table (Markdown) on stdout
 
@@ -47,9 +46,9 @@ WHOLE = {  # replicates -> the whole forecast's rows
 }
 LIFTOFF = {"0-199": "forecast_coverage_100N_liftoff_draws_0_199.jsonl.gz"}
 FRC = ("peak_frequency_hz", "peak_amplitude_um", "fold_up_hz", "fold_down_hz",
-       "liftoff_force_n", "liftoff_force_bearing_n")  # floored since session 11
-FOLLOWED = FRC[:4]  # the model at each refit since session 13
-SEARCHED = FRC[4:]  # the lift-off search at each refit since session 14
+       "liftoff_force_n", "liftoff_force_bearing_n")  # floored at the delta half-width
+FOLLOWED = FRC[:4]  # the model itself at each refit
+SEARCHED = FRC[4:]  # the lift-off search at each refit
 
 
 def contributes(sets: str, quantity: str) -> bool:

@@ -1,4 +1,4 @@
-"""Diagnostic (issue 20): the FRC peak located afresh at draws, against the forecast.
+"""Diagnostic of the forecast: the FRC peak located afresh at draws, against the forecast.
 
 For an identification folder with saved bootstrap refits (`bsfs identify`, refits.npz)
 and its prediction (`bsfs predict --out PRED`), the FRC peak at the prediction's force

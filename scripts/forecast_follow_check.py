@@ -1,4 +1,4 @@
-"""Check (issue 20): the FRC's peak and folds followed to the draws, against the same
+"""Check of the forecast: the FRC's peak and folds followed to the draws, against the same
 points located afresh by continuation at each draw.
 
 For an identification folder with saved draws (`bsfs identify`, refits.npz or

@@ -1,4 +1,4 @@
-"""Check (issue 20): the lift-off force on the nonlinear orbits at each draw, by the
+"""Check of the forecast: the lift-off force on the nonlinear orbits at each draw, by the
 vmapped program that `bsfs predict` runs (`identification/_liftoff_draws.py`: the FRC
 peak followed, a secant in the force), against the search at the estimate run afresh at
 the draw (`_liftoff.search_on_orbits`: the peak located by continuation at every force,

@@ -1,4 +1,4 @@
-"""The forecast's lift-off forces against the other orbit method (issue 20).
+"""The forecast's lift-off forces against the other orbit method.
 
 `bsfs predict` finds each joint's lift-off force on harmonic-balance orbits at the FRC
 peak. This script takes those forces for an identification folder and evaluates each

@@ -20,7 +20,7 @@ model error at the truth (0 for an exact model).
 
 Records: 0 the chirp, 1-8 the 100 N sines at robustness_study.RATIOS x f1, 9-10 the
 3000 N sines. `--noise force` / `acc` replicates one sensor's noise only (the other
-sensor's weight is then about zero). Docs: docs/ROBUSTNESS.md, session 20.
+sensor's weight is then about zero). Docs: docs/ROBUSTNESS.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Diagnostic (issue 24): do bootstrap refits' intervals cover where the linearised ones
-are too narrow?
+"""Diagnostic of the robustness study: do bootstrap refits' intervals cover where the
+linearised ones are too narrow?
 
 The robustness study's default set with every parameter drawn log-uniformly over its
 prior's central 95 % (`scripts/robustness_study.py --set default`) leaves the dampers'

@@ -5,9 +5,9 @@ problem is built with its models chosen at the truth, and the Gauss-Newton step 
 truth, -C J^T r / sigma (C = (J^T J)^-1 with the prior's rows, sigma = sqrt(diag C)), is
 split into the prior's rows' part and each record's part. The step is what the fit's
 estimate minus the truth is to first order, in its own standard errors; with honest
-weights and a truth drawn from the prior its spread is 1 (docs/ROBUSTNESS.md, session
-15). Per record it also gives the mean square of the weighted residual at the truth
-(1 for honest weights; above 1: noise or model error the weights do not carry).
+weights and a truth drawn from the prior its spread is 1 (docs/ROBUSTNESS.md). Per
+record it also gives the mean square of the weighted residual at the truth (1 for honest
+weights; above 1: noise or model error the weights do not carry).
 
     python scripts/robustness_step_check.py --draw uniform              # 100 drives, ~5 min
     python scripts/robustness_step_check.py --draw uniform --no-effects # no drift, distortion

@@ -1,4 +1,4 @@
-"""Robustness study of identification through the resonance (issue 24, item 3).
+"""Robustness study of identification through the resonance (docs/ROBUSTNESS.md).
 
 Worn drives are drawn over the prior ranges (seeded), each is tested with a through-resonance
 plan, and each test is identified from a cold start as a user would (`identification.identify`,

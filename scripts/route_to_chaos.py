@@ -1,4 +1,4 @@
-"""Search for the paper's route to chaos with verified labels (issue 10, item 5).
+"""Search for the paper's route to chaos with verified labels (docs/ROUTE_TO_CHAOS.md).
 
 Runs three two-parameter atlases with `bsfs map` (default preset, thermal deformation as
 in the preset, excitation on the nut), each row a verified cold frequency sweep of

@@ -1,4 +1,12 @@
-"""Global test configuration: 64-bit floats, strict rank promotion (as diffrax does)."""
+"""Global test configuration: 64-bit floats, strict rank promotion (as diffrax does), and
+XLA's earlier CPU fusion emitters, as the `bsfs` command uses them.
+
+Importing bsfs changes nothing of the process (tests/test_host.py checks that in fresh
+processes); the suite itself chooses the `bsfs` command's settings by the explicit
+`bsfs_jax.use_fast_compilation()`: XLA's earlier fusion emitters and EQX_ON_ERROR=nan, under
+which equinox's checks leave no host callback in a program, so that the test processes
+share compiled programs through the persistent cache (a callback keeps a program out of it).
+"""
 
 import os
 
@@ -22,11 +30,36 @@ if os.environ.get("BSFS_CACHE_DIR"):  # CI: share compiled programs across test 
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+from bsfs_jax import use_fast_compilation  # noqa: E402 - importing bsfs changes nothing
+
+# XLA's earlier CPU fusion emitters for the test processes, as the `bsfs` command uses them
+# (about a quarter fewer XLA seconds): the suite's own choice, made here, before any test
+# file computes (XLA reads XLA_FLAGS when jax starts its backend); not where XLA_FLAGS names
+# the option or BSFS_XLA_DEFAULTS=0; EQX_ON_ERROR=nan where the environment leaves it unset.
+_XLA_FLAGS_BEFORE = os.environ.get("XLA_FLAGS")
+_XLA_FLAGS_CHOSEN = use_fast_compilation().get("XLA_FLAGS")
+
+
+def use_xla_default_code() -> bool:
+    """For a file measured against XLA's default CPU code (`test_lanes.py`), at its import:
+    take back the suite's choice of XLA_FLAGS above where jax has not started its backend
+    yet (the file is the first of its process to compute, as in a process of its own).
+    Whether the process runs XLA's default CPU code."""
+    from jax._src import xla_bridge
+
+    if (_XLA_FLAGS_CHOSEN is not None and os.environ.get("XLA_FLAGS") == _XLA_FLAGS_CHOSEN
+            and not xla_bridge.backends_are_initialized()):
+        if _XLA_FLAGS_BEFORE is None:
+            del os.environ["XLA_FLAGS"]
+        else:
+            os.environ["XLA_FLAGS"] = _XLA_FLAGS_BEFORE
+    return "xla_cpu_use_fusion_emitters=false" not in os.environ.get("XLA_FLAGS", "")
+
+
 # `tests/run_each.py` names a file per test process (BSFS_TEST_COMPILE_STATS): the seconds
 # jax spent tracing, lowering and compiling (its compile events; XLA's seconds include the
 # persistent cache's reads, and "programs" the executables read from it, "cache_hits"),
-# written at the session's end, so that the record shows where the suite's time goes
-# (issue 19).
+# written at the session's end, so that the record shows where the suite's time goes.
 _COMPILE = {"programs": 0, "compile_s": 0.0, "trace_s": 0.0, "lower_s": 0.0,
             "cache_hits": 0}
 _EVENTS = {"/jax/core/compile/backend_compile_duration": "compile_s",

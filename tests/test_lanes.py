@@ -11,31 +11,31 @@ import sys
 import textwrap
 from pathlib import Path
 
-# XLA's own CPU code generation for this file (`bsfs_jax/__init__.py` otherwise turns the
-# CPU compiler's newer fusion emitters off): the kernel runs here through Pallas'
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bsfs_jax import preset
+from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep
+from bsfs_jax.model import kernel_vector_field, vector_field_components
+from bsfs_jax.solvers import RESULTS, SolverSettings, integrate, integrate_lanes, result_codes
+from tests.conftest import use_xla_default_code
+
+ROOT = Path(__file__).resolve().parents[1]
+TOL = dict(rtol=1e-8, atol=1e-12)
+# XLA's own CPU code generation for this file (tests/conftest.py otherwise turns the CPU
+# compiler's newer fusion emitters off for the suite): the kernel runs here through Pallas'
 # interpreter as a stand-in for the GPU kernel, on which XLA's CPU options have no effect,
 # and its comparisons with the fused loop (step counts to a few per mille, the looped
 # stages to rounding) were measured against XLA's default CPU code. Under the other
 # emitters every program rounds differently, and the fused loop's own step count on the
 # 4000 Hz lane moves by 0.5 % (1662 -> 1670 steps), the kernel's the other way (1668 ->
-# 1653). Read at bsfs_jax's import: `make test` runs this file in a process of its own.
-os.environ.setdefault("BSFS_XLA_DEFAULTS", "0")
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from bsfs_jax import preset  # noqa: E402
-from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep  # noqa: E402
-from bsfs_jax.model import kernel_vector_field, vector_field_components  # noqa: E402
-from bsfs_jax.solvers import RESULTS, SolverSettings, integrate, integrate_lanes, result_codes  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-TOL = dict(rtol=1e-8, atol=1e-12)
-# In one pytest process with other files, an earlier import of bsfs_jax set the flag.
+# 1653). Possible while jax has not started its backend: `make test` runs this file in a
+# process of its own; in one pytest process with other files, one of them may have
+# computed already.
 XLA_DEFAULT_CODE = pytest.mark.skipif(
-    "xla_cpu_use_fusion_emitters=false" in os.environ.get("XLA_FLAGS", ""),
+    not use_xla_default_code(),
     reason="measured against XLA's default CPU code: run this file in its own process "
            "(`make test` does)")
 

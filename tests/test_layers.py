@@ -10,15 +10,16 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("bsfs_jax", "identification")
 
 # What each layer may import: ARCHITECTURE.md's table, top to bottom. "_files",
-# "_programs", "_numerics" and "_lazy" are bsfs_jax's own utility modules (files and
-# programs are public as bsfs_jax.files and bsfs_jax.cached_jit); "bsfs_jax" is its
-# top-level API.
+# "_programs", "_numerics", "_lazy" and "_host" are bsfs_jax's own utility modules (files,
+# programs and the host settings are public as bsfs_jax.files, bsfs_jax.cached_jit and
+# bsfs_jax.use_fast_compilation); "bsfs_jax" is its top-level API.
 _UTIL = {"_files", "_numerics"}
 ALLOWED = {
     "_files": set(),
     "files": {"_files"},
     "_numerics": set(),
     "_lazy": set(),
+    "_host": set(),
     "_prefetch": set(),
     "_programs": {"_files", "_prefetch"},
     "params": {"_files", "_numerics"},
@@ -34,10 +35,10 @@ ALLOWED = {
     "plotting": {"analysis", "_files"},
     "reproduce": {"_files", "_numerics", "params", "physics", "model", "solvers", "machine",
                   "analysis", "design", "plotting"},
-    "cli": {"_files", "_numerics", "_programs", "bsfs_jax", "files", "params", "physics",
+    "cli": {"_files", "_numerics", "_programs", "_host", "bsfs_jax", "files", "params", "physics",
             "model", "solvers", "machine", "analysis", "design", "identification",
             "plotting", "reproduce"},
-    "bsfs_jax": {"_programs", "_lazy", "params", "physics", "model", "solvers", "machine"},
+    "bsfs_jax": {"_programs", "_lazy", "_host", "params", "physics", "model", "solvers", "machine"},
 }
 
 

@@ -234,25 +234,3 @@ def test_a_long_running_program_gives_the_plain_programs_answers(cache_dir):
         np.testing.assert_allclose(got["grad"], want["grad"], rtol=1e-15)
     plain = _poly_long.plain
     assert float(plain(x, data, 2)["value"]) == pytest.approx(float(jnp.sum(data["w"] * x**2)))
-
-
-def test_bsfs_turns_the_newer_cpu_fusion_emitters_off_unless_told():
-    """`import bsfs_jax` adds `--xla_cpu_use_fusion_emitters=false` to XLA_FLAGS (shorter
-    compilations) unless XLA_FLAGS names that option or BSFS_XLA_DEFAULTS=0."""
-    import os
-    import subprocess
-    import sys
-
-    def flags(**env):
-        base = {k: v for k, v in os.environ.items()
-                if k not in ("XLA_FLAGS", "BSFS_XLA_DEFAULTS")}
-        code = "import os, bsfs_jax; print(os.environ.get('XLA_FLAGS', '<unset>'))"
-        return subprocess.run([sys.executable, "-c", code], env={**base, **env},
-                              capture_output=True, text=True, check=True).stdout.strip()
-
-    assert flags() == "--xla_cpu_use_fusion_emitters=false"
-    assert flags(XLA_FLAGS="--xla_force_host_platform_device_count=2") == (
-        "--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false")
-    assert flags(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true") == (
-        "--xla_cpu_use_fusion_emitters=true")
-    assert flags(BSFS_XLA_DEFAULTS="0") == "<unset>"

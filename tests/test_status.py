@@ -1,7 +1,11 @@
-"""README's status table and BENCHMARKS.md are generated from the committed outputs.
+"""The documents the project generates match their generators, and they read as a manual.
 
-A hand edit of either, or an output changed without regenerating them, fails here: run
-`make status` (scripts/status.py) or `python benchmarks/run_all.py --assemble-only`.
+README's status table is scripts/status.py's output from docs/status.toml and the
+committed outputs; BENCHMARKS.md is benchmarks/run_all.py's assembly of
+benchmarks/results/*.md. A hand edit of either, or an output changed without regenerating
+them, fails here: run `make status` or `python benchmarks/run_all.py --assemble-only`.
+The documents' links resolve, the status table's cells are short, ARCHITECTURE.md's layer
+table is the one tests/test_layers.py enforces, and no document reads as a diary.
 Files only, no JAX compilation.
 """
 
@@ -57,6 +61,34 @@ def _record_candidates():
     return out
 
 
+def _table_rows(block: str) -> list[list[str]]:
+    """The cells of the status table's body rows."""
+    rows = []
+    for ln in block.splitlines():
+        if ln.startswith("| ") and not ln.startswith("| area |"):
+            rows.append([c.strip() for c in re.split(r"(?<!\\)\|", ln)[1:-1]])
+    return rows
+
+
+def _rows_by_area(block):
+    return {r[0]: dict(zip(status.COLUMNS, r, strict=True)) for r in _table_rows(block)}
+
+
+def _copy_tree(tmp_path):
+    for rel in ["README.md", "BENCHMARKS.md", status.TEMPLATES, "docs/REPRODUCTION.md",
+                "docs/ROUTE_TO_CHAOS.md", status.RECORD, "bsfs_jax/design/_catalogue.py"]:
+        if (ROOT / rel).exists():
+            (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(ROOT / rel, tmp_path / rel)
+    shutil.copytree(ROOT / "benchmarks" / "results", tmp_path / "benchmarks" / "results")
+    shutil.copytree(ROOT / "bsfs_jax" / "params" / "presets",
+                    tmp_path / "bsfs_jax" / "params" / "presets")
+    return tmp_path
+
+
+# ------------------------------------------------------------------- generated documents
+
+
 def test_readme_status_block_is_the_generators_output():
     before, block, after = status.split_readme((ROOT / "README.md").read_text(encoding="utf-8"))
     rendered = [status.render(ROOT, test_record=rec)[0] for rec in _record_candidates()]
@@ -66,12 +98,43 @@ def test_readme_status_block_is_the_generators_output():
                     "(`python scripts/status.py`), and edit docs/status.toml, not README.md")
 
 
+def test_the_status_table_has_one_short_line_per_area():
+    _, block, _ = status.split_readme((ROOT / "README.md").read_text(encoding="utf-8"))
+    rows = _table_rows(block)
+    areas = [r["area"] for r in status.load_templates(ROOT)["row"]]
+    assert [r[0] for r in rows] == areas  # one line per area, in the templates' order
+    for row in rows:
+        assert len(row) == len(status.COLUMNS), row[0]
+        for cell in row:
+            assert len(cell) <= status.MAX_CELL, (row[0], len(cell), cell[:60])
+
+
+def test_the_generator_refuses_a_long_cell(tmp_path):
+    root = _copy_tree(tmp_path)
+    toml = root / status.TEMPLATES
+    text = toml.read_text()
+    marker = "Done. Validated on textbook systems"
+    assert marker in text
+    toml.write_text(text.replace(marker, "Very long. " * 30 + marker, 1))
+    with pytest.raises(SystemExit, match="Sweeps and analysis.*at most 300"):
+        status.render(root)
+
+
 def test_benchmarks_md_is_the_assembly_of_the_results():
     text = (ROOT / "BENCHMARKS.md").read_text()
     expected = run_all.assemble() + "\n"
     assert text == expected, (
         f"BENCHMARKS.md: {run_all.diff_summary(text, expected)}; run "
         "`python benchmarks/run_all.py --assemble-only` (edit benchmarks/results/*.md)")
+
+
+def test_each_benchmark_section_names_its_command_machine_and_date():
+    for path in run_all._results():
+        text = path.read_text()
+        assert re.search(r"^## [A-Z]\d ", text, re.M), f"{path.name}: no '## X1 Title' heading"
+        for word in ("Command:", "Machine", "Date"):
+            assert word in text, f"{path.name} does not say its {word.rstrip(':')}"
+        assert re.search(r"^\|.*\|$", text, re.M), f"{path.name} has no table"
 
 
 def test_the_generator_reads_no_ignored_file():
@@ -85,29 +148,16 @@ def test_the_generator_reads_no_ignored_file():
     assert ignored.stdout.strip() == "", f"reads git-ignored files: {ignored.stdout.split()}"
 
 
-def test_every_placeholder_is_known():
+def test_every_placeholder_is_known_and_found():
     templates = status.load_templates(ROOT)
     values = status.collect(status.Sources(ROOT), templates)
-    parts = [p for row in templates["row"] for p in row.get("text", [])]
+    parts = [row.get(k, "") for row in templates["row"] for k in ("state", "measured")]
     parts.append(templates.get("footer", ""))
     names = {n for p in parts for n in status._PLACEHOLDER.findall(p)}
     assert names <= set(values), sorted(names - set(values))
-    # A missing value names its file (the row then says "not measured in this clone").
-    for name in names:
-        if isinstance(values[name], status.Missing):
-            assert re.search(r"\w/\w", values[name].why), (name, values[name].why)
-
-
-def _copy_tree(tmp_path):
-    for rel in ["README.md", "BENCHMARKS.md", status.TEMPLATES, "docs/REPRODUCTION.md",
-                "docs/ROUTE_TO_CHAOS.md", status.RECORD, "bsfs_jax/design/_metrics.py"]:
-        if (ROOT / rel).exists():
-            (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy(ROOT / rel, tmp_path / rel)
-    shutil.copytree(ROOT / "benchmarks" / "results", tmp_path / "benchmarks" / "results")
-    shutil.copytree(ROOT / "bsfs_jax" / "params" / "presets",
-                    tmp_path / "bsfs_jax" / "params" / "presets")
-    return tmp_path
+    # In this tree every committed output is there: no figure is "?".
+    missing = {n: values[n].why for n in names if isinstance(values[n], status.Missing)}
+    assert not missing, missing
 
 
 def test_a_missing_output_is_said_not_replaced_by_an_old_number(tmp_path):
@@ -115,16 +165,17 @@ def test_a_missing_output_is_said_not_replaced_by_an_old_number(tmp_path):
     (root / "benchmarks" / "results" / "b1_sweep.json").unlink()
     (root / "docs" / "REPRODUCTION.md").unlink()
     block, _ = status.render(root, test_record=None)
-    rows = {ln.split(" | ")[0].lstrip("| "): ln for ln in block.splitlines()
-            if ln.startswith("| ")}
+    rows = _rows_by_area(block)
     sweeps = rows["Sweeps and analysis"]
-    assert "not measured in this clone: no benchmarks/results/b1_sweep.json" in sweeps
-    assert "8.51" not in sweeps and "141x" not in sweeps
-    assert "? s sharded" in sweeps
-    assert "Done and validated on textbook systems" in sweeps  # the other parts stay
-    assert "no docs/REPRODUCTION.md" in rows["Reproduction of the paper"]
-    assert "Fig. 18" not in rows["Reproduction of the paper"]
-    assert "Tests: no recorded run in this clone." in rows["Design"]
+    assert ("not measured in this clone: no benchmarks/results/b1_sweep.json"
+            in sweeps["measured"])
+    assert "4.67" not in sweeps["measured"] and "259x" not in sweeps["measured"]
+    assert "? s on one core" in sweeps["measured"]
+    assert "Validated on textbook systems" in sweeps["state"]  # the other cells stay
+    assert "no docs/REPRODUCTION.md" in rows["Reproduction of the paper"]["measured"]
+    assert "reproduced 1" not in rows["Reproduction of the paper"]["measured"]
+    assert rows["Design"]["tests"] == "no recorded run in this clone"
+    assert all(len(c) <= status.MAX_CELL for r in rows.values() for c in r.values())
 
 
 def test_check_fails_on_a_hand_edit_and_the_generator_repairs_it(tmp_path):
@@ -132,7 +183,7 @@ def test_check_fails_on_a_hand_edit_and_the_generator_repairs_it(tmp_path):
     script = [sys.executable, str(ROOT / "scripts" / "status.py"), "--root", str(root)]
     readme = root / "README.md"
     status.main(["--root", str(root)])  # up to date with this copy, whatever the record
-    readme.write_text(readme.read_text().replace("cold frequencies", "cold frequencies!", 1))
+    readme.write_text(readme.read_text().replace("cold points", "cold points!", 1))
     res = subprocess.run(script + ["--check"], capture_output=True, text=True)
     assert res.returncode == 1
     assert "1 row(s) differ (Sweeps and analysis)" in res.stdout
@@ -141,10 +192,10 @@ def test_check_fails_on_a_hand_edit_and_the_generator_repairs_it(tmp_path):
     assert res.returncode == 0, res.stderr
     assert subprocess.run(script + ["--check"], capture_output=True).returncode == 0
     text = readme.read_text()
-    assert text.count(status.BEGIN) == 1 and "## Benchmarks" in text  # the rest is kept
+    assert text.count(status.BEGIN) == 1 and "## Read more" in text  # the rest is kept
 
 
-def test_test_counts_come_from_the_record(tmp_path):
+def test_test_counts_come_from_the_record():
     rec = {"date_utc": "2030-01-02 03:04", "seconds": 600.0, "jobs": 2, "pytest_args": [],
            "slow_tests": False, "load_average_at_start": [1.5, 1, 1],
            "machine": {"cpu": "CPU", "cores": 2}, "files": 2, "failed_files": ["test_cli.py"],
@@ -155,11 +206,112 @@ def test_test_counts_come_from_the_record(tmp_path):
                {"file": "test_new.py", "status": "ok", "exit_code": 0, "seconds": 100.0,
                 "passed": 2, "failed": 0, "errors": 0, "skipped": 2}]}
     block, _ = status.render(ROOT, test_record=rec)
-    assert "`test_cli.py` 9 passed, **1 failed**" in block
-    assert "`test_physics.py` not in the last recorded run" in block
-    assert "`test_new.py` 2 passed, 2 skipped" in block  # unassigned: in "Tests and CI"
-    assert "11 passed, **1 failed**, 2 skipped in 2 files" in block
-    assert "as of the last recorded run, 2030-01-02 03:04 UTC" in block
+    rows = _rows_by_area(block)
+    cli = rows["Command line"]["tests"]
+    assert cli.startswith("9 passed, **1 failed** in 1 file")
+    assert "**failed: `test_cli.py`**" in cli
+    assert "not in the last recorded run: `test_fuzz.py`" in cli
+    assert rows["Physics and parameters"]["tests"] == (
+        "none recorded; not in the last recorded run: `test_physics.py`, `test_params.py`")
+    assert rows["Tests and CI"]["tests"] == "2 passed, 2 skipped in 1 file"  # unassigned
+    assert "11 passed, **1 failed**, 2 skipped in 2 files" in rows["Tests and CI"]["measured"]
+    assert "last recorded `make test`, 2030-01-02 03:04 UTC" in block
+
+
+# ------------------------------------------------------------------ documents as a manual
+
+_DOCS = ["README.md", "BENCHMARKS.md", "CHANGELOG.md", *sorted(
+    str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
+_DIARY = re.compile(r"\bsessions?\b|\bissues?\s*#?\d+", re.I)
+
+
+def _prose_files():
+    """(path, text) of the project's documents, the status templates, the benchmark and
+    study scripts, the benchmarks' results and the notebooks' text cells."""
+    files = [ROOT / p for p in _DOCS] + [ROOT / "docs" / "status.toml",
+                                         ROOT / "data" / "README.md"]
+    for folder, patterns in (("benchmarks", ("*.py", "*.sh")), ("scripts", ("*.py",)),
+                             ("benchmarks/results", ("*.md", "*.json"))):
+        for pattern in patterns:
+            files += sorted((ROOT / folder).glob(pattern))
+    out = [(p, p.read_text(encoding="utf-8")) for p in files if p.is_file()]
+    for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
+        cells = json.loads(nb.read_text(encoding="utf-8"))["cells"]
+        out.append((nb, "\n".join("".join(c["source"]) for c in cells
+                                  if c["cell_type"] == "markdown")))
+    return out
+
+
+def test_no_document_reads_as_a_diary():
+    """Say what changed and why; which work session or issue it came from is git's."""
+    found = [f"{p.relative_to(ROOT)}: {m.group(0)!r}" for p, text in _prose_files()
+             for m in _DIARY.finditer(text)]
+    assert not found, "\n".join(found[:20])
+
+
+def _links(text):
+    """Markdown link and image targets outside code blocks and code spans."""
+    text = re.sub(r"```.*?```", "", text, flags=re.S)
+    text = re.sub(r"`[^`\n]*`", "", text)
+    return re.findall(r"\]\(([^)\s]+)\)", text)
+
+
+def _anchors(path: Path) -> set[str]:
+    return {run_all.slug(m) for m in re.findall(r"^#+ (.+)$", path.read_text(), re.M)}
+
+
+@pytest.mark.parametrize("doc", _DOCS)
+def test_the_documents_links_resolve(doc):
+    path = ROOT / doc
+    broken = []
+    for target in _links(path.read_text(encoding="utf-8")):
+        if re.match(r"[a-z]+:", target):  # http:, https:, mailto:
+            continue
+        file, _, anchor = target.partition("#")
+        dest = (path.parent / file).resolve() if file else path
+        if not dest.exists():
+            broken.append(target)
+        elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+            broken.append(target)
+    assert not broken, f"{doc}: {broken}"
+
+
+def test_every_cited_section_of_physics_md_exists():
+    """The code and the documents cite the contract as "physics.md section N" (or §N):
+    docs/physics.md has each of those sections."""
+    headings = set(re.findall(r"^## (\d+)\. ", (ROOT / "docs" / "physics.md").read_text(),
+                              re.M))
+    cited = {}
+    for folder in ("bsfs_jax", "identification", "tests", "scripts", "benchmarks", "docs",
+                   "notebooks"):
+        for path in (ROOT / folder).rglob("*"):
+            if path.suffix not in (".py", ".md", ".toml", ".ipynb") or not path.is_file():
+                continue
+            text = path.read_text(encoding="utf-8", errors="replace")
+            for m in re.finditer(r"physics\.md(?:'s)?,?\s+(?:sections?|§|s)\s?(\d+)", text):
+                cited.setdefault(m.group(1), str(path.relative_to(ROOT)))
+    assert cited, "found no citation of physics.md: the pattern is stale"
+    missing = {n: where for n, where in cited.items() if n not in headings}
+    assert not missing, f"docs/physics.md lacks the sections cited: {missing}"
+
+
+def test_architecture_s_layer_table_is_the_one_the_layer_test_enforces():
+    """docs/ARCHITECTURE.md's table, layer by layer, says what tests/test_layers.py's
+    ALLOWED says: the document states the rule, the test enforces it."""
+    from tests import test_layers as layers
+
+    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    section = text.split("## Layers", 1)[1].split("\n## ", 1)[0]
+    table = {}
+    for ln in section.splitlines():
+        if not ln.startswith("| `"):
+            continue
+        cells = [c.strip() for c in ln.strip("|").split("|")]
+        table[cells[0].strip("`")] = set(re.findall(r"`([\w.]+)`", cells[-1]))
+    assert table == {k: set(v) for k, v in layers.ALLOWED.items()}
+
+
+# ------------------------------------------------------------- the test runner's record
 
 
 def test_run_each_reads_pytest_summary_lines():

@@ -1,7 +1,9 @@
 """The `bsfs` command line. Each command lives in its own module with `register(sub)`.
 
-Only this layer touches `jax.config` (64-bit floats, the persistent compilation cache),
-parses arguments and writes files.
+Only this layer chooses process-wide settings: `jax.config` (64-bit floats, the persistent
+compilation cache), and the environment of its own process (`EQX_ON_ERROR=nan` and XLA's
+earlier CPU fusion emitters, `choose_process_settings`), and only when `main` runs, never
+at an import. It also parses arguments and writes files.
 """
 
 import argparse
@@ -81,7 +83,20 @@ def _one_line_warnings(command) -> None:
     warnings.showwarning = show
 
 
+def choose_process_settings() -> dict[str, str]:
+    """The `bsfs` command's own settings for its process, chosen before equinox is imported
+    and before jax starts its backend: `bsfs_jax.use_fast_compilation()`'s (EQX_ON_ERROR=nan
+    unless EQX_ON_ERROR is set; `--xla_cpu_use_fusion_emitters=false` in XLA_FLAGS unless
+    XLA_FLAGS names that option or BSFS_XLA_DEFAULTS=0), without its warnings: where `main`
+    is called in a process that has used equinox or jax already, a setting that comes too
+    late is skipped. Returns the environment variables it changed."""
+    from .._host import apply
+
+    return apply()[0]
+
+
 def main(argv=None) -> int:
+    choose_process_settings()  # first: before the command modules import jax's users
     from ._common import CLIError, setup_jax
 
     parser = build_parser()

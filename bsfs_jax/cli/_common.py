@@ -18,7 +18,13 @@ def setup_jax() -> None:
     """64-bit floats, the persistent compilation cache (so repeated runs skip compiles), and
     one BLAS thread for jaxlib's CPU LAPACK (scipy's OpenBLAS, loaded at the first linear
     solve, after this): its threads oversubscribe small machines next to XLA's own (a
-    199 x 199 LU took 120 ms instead of 1 ms on a loaded 2-core machine)."""
+    199 x 199 LU took 120 ms instead of 1 ms on a loaded 2-core machine). Also the CLI's
+    EQX_ON_ERROR and XLA_FLAGS defaults (`cli.choose_process_settings`; `main` chooses them
+    first, a script that calls this at its start gets them here), each where it still
+    takes effect."""
+    from .._host import apply
+
+    apply()
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     import jax

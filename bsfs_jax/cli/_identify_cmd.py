@@ -46,6 +46,9 @@ def register(sub) -> None:
                    help="steady-state model per sine record (auto: the linear FRF where its "
                    "predicted error is below 0.1 standard errors, else the first-order "
                    "harmonic-balance correction where that is, else the periodic orbit)")
+    p.add_argument("--max-lines", type=ui.count(0, 10_000_000), default=None, metavar="N",
+                   help="fit an FRF of more lines on runs of adjacent lines merged to at "
+                   "most N (inverse-variance means; default 32768; 0: every line)")
     p.add_argument("--starts", type=ui.count(1, 100), default=3, help="multi-start count (3)")
     p.add_argument("--max-steps", type=ui.count(1, 100_000), default=100,
                    help="LM iterations per start (100)")
@@ -135,7 +138,10 @@ def run_identify(args) -> int:
         res = idn.identify(records, prior, names, model=args.model, starts=args.starts,
                            seed=args.seed, max_steps=args.max_steps, priors=priors,
                            profile={"auto": "auto", "on": True, "off": False}[args.profile],
-                           on_models=load_figure_modules)
+                           on_models=load_figure_modules,
+                           max_lines=idn.MAX_LINES if args.max_lines is None else args.max_lines,
+                           say=(lambda text: ui.say(f"identify: {text}"))
+                           if ui.progress_wanted(args) else None)
     except (idn.RecordError, ValueError) as exc:
         raise ui.CLIError(str(exc)) from None
     report = idn.report_dict(res)
@@ -201,10 +207,13 @@ def _refits(res, args):
 
     import identification as idn
 
-    with tqdm(desc="refits", unit="fit", disable=not ui.progress_enabled(args)) as bar:
+    bar_on = ui.progress_enabled(args)
+    lines = ui.Progress("identify: bootstrap refits", ui.progress_wanted(args) and not bar_on)
+    with tqdm(desc="refits", unit="fit", disable=not bar_on) as bar:
         def on_batch(done, n):
             bar.total = n
             bar.update(done - bar.n)
+            lines(done, n)
 
         return idn.refits_for(res, args.refits, seed=args.seed, on_batch=on_batch)
 

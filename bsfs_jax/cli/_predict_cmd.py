@@ -1,4 +1,4 @@
-"""`bsfs predict`: what an identified drive will do, with 95 % intervals (issue 20)."""
+"""`bsfs predict`: what an identified drive will do, with 95 % intervals."""
 
 from . import _common as ui
 
