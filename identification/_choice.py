@@ -49,17 +49,26 @@ def line_bound(model_error: float) -> float:
 
 _receptance_jit = eqx.filter_jit(receptance)
 _error_lines_jit = eqx.filter_jit(jax.vmap(linearisation_error, in_axes=(None, 0, 0)))
-LINE_BUCKET = 512  # FRF line counts are padded to a multiple of this: one program per bucket
+# FRF lines are screened in blocks of this many, by one compiled program per quantity called
+# in a loop: a record of any line count reuses it, and no program or buffer grows with it.
+LINE_BLOCK = 2048
 
 
-def _padded(x):
-    """x (n, ...) padded along its first axis to a multiple of `LINE_BUCKET` with copies of
-    its last row, so that records with other line counts reuse the compiled program (each
-    chirp's usable band, hence its count, differs: every new record set compiled anew)."""
-    n = x.shape[0]
-    m = -(-max(n, 1) // LINE_BUCKET) * LINE_BUCKET
-    return jnp.asarray(np.concatenate([x, np.repeat(x[-1:], m - n, axis=0)]) if n else
-                       np.zeros((m,) + x.shape[1:], x.dtype))
+def _blocks(fn, system, *arrays):
+    """`fn(system, *blocks)` over `arrays` (n, ...) in blocks of `LINE_BLOCK` rows, the last
+    padded with copies of its last row; the results (n, ...) as numpy."""
+    n = arrays[0].shape[0]
+    out = []
+    for lo in range(0, max(n, 1), LINE_BLOCK):
+        parts = []
+        for x in arrays:
+            b = x[lo:lo + LINE_BLOCK]
+            if b.shape[0] == 0:
+                b = np.zeros((1,) + x.shape[1:], x.dtype)
+            parts.append(jnp.asarray(np.concatenate(
+                [b, np.repeat(b[-1:], LINE_BLOCK - b.shape[0], axis=0)])))
+        out.append(np.asarray(fn(system, *parts))[:min(LINE_BLOCK, n - lo)])
+    return np.concatenate(out)[:n]
 
 
 def is_frf(d) -> bool:
@@ -130,7 +139,7 @@ def frf_amplitude_ratio(system, data) -> float:
     as the amplitude at every line (0 when the file does not give it)."""
     freq = np.asarray(data.frequency_hz)
     force = np.full(freq.shape, float(data.force_amplitude_n or 0.0))
-    x = np.asarray(_receptance_jit(system, _padded(freq)))[:freq.size] * force[:, None]
+    x = _blocks(_receptance_jit, system, freq) * force[:, None]
     d_nut, d_bearing = _preload_deformations(system)
     return float(max(np.max(np.abs(x[:, 2] - x[:, 1])) / d_nut,
                      np.max(np.abs(x[:, 0])) / d_bearing))
@@ -154,7 +163,7 @@ def chirp_line_z(system, data):
     if data.excitation != "chirp" or not data.force_amplitude_n:
         return np.zeros(freq.shape)
     force = np.full((freq.size, 1), float(data.force_amplitude_n), complex)
-    err = np.asarray(_error_lines_jit(system, _padded(freq), _padded(force)))[:freq.size, 0]
+    err = _blocks(_error_lines_jit, system, freq, force)[:, 0]
     z = _z(err, np.asarray(data.variance, float))
     return np.where(np.isfinite(z), z, 0.0)
 

@@ -535,3 +535,15 @@ def test_messages_name_values_as_a_person_writes_them(tmp_path):
     with pytest.raises(RecordError) as err:
         load_record(_write(tmp_path, _csv(t=t)))
     assert "np.float64" not in str(err.value) and "time_s = " in str(err.value)
+
+
+def test_a_record_too_large_for_the_memory_is_refused_before_reading(tmp_path):
+    from identification._load import check_memory
+
+    path = write_record_csv(tmp_path / "big.csv", _signals(), META)
+    check_memory([path], available=64e9)  # fits
+    with pytest.raises(RecordError) as err:
+        check_memory([path], available=1e9)
+    text = str(err.value)
+    assert "\n" not in text and str(path) in text
+    assert "GB" in text and "Decimate" in text and "--max-lines" in text
