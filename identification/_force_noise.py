@@ -6,7 +6,7 @@ harmonic (`_groups._sine_arrays`). A periodic orbit of the nonlinear joints resp
 its force otherwise: near the first resonance its amplitude grows faster than the force,
 and at a high force (contact loss) the fundamental's noise reaches the second and third
 harmonics, which |G_k|^2 var(F_k) leaves out. Replicating the sensor noise on such
-records (`scripts/robustness_noise_mc.py`, docs/ROBUSTNESS.md session 20) gave residual
+records (one-off check `robustness_noise_mc.py`, in git at 9d7344c) gave residual
 variances up to 10x the stated ones along the directions that inform the dampers.
 
 Here the orbit records' weights take the model's own derivatives instead: var(A_kc) +

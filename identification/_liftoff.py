@@ -244,7 +244,8 @@ def _joint_on_orbits(ident, k, lin, derivs, start, stop, f0, f1, at_draws):
     which the first joint has lost contact over part of the period, where the peak's
     extended system (its tangent rows) is not differentiable, and on the bundled worn
     drive its point could not be followed at 36 of the 200 refits (at 30 or at 100 chord
-    steps alike), so it keeps the quadratic model (`scripts/liftoff_draws_check.py`)."""
+    steps alike), so it keeps the quadratic model (one-off check `liftoff_draws_check.py`, in git
+    at 9d7344c)."""
     joint = JOINTS[k]
 
     def search(th, f0, f1, first_hint=None):

@@ -13,7 +13,7 @@ large, its interval is the range of the quadratic model over draws. Over Gaussia
 model's median moves by half the curvature term tr(H C)/2 (+0.23 standard deviations for the
 damping ratio over 200 replicates of the preload-loss test), while the estimate itself is
 close to unbiased; over refits it moves as the exact refits do (-0.015 against -0.015 on the
-bundled drive, `scripts/forecast_bootstrap_check.py`).
+bundled drive, one-off check `forecast_bootstrap_check.py`, in git at 9d7344c).
 
 The refits run through `_solve.solve`: batches of its lane class, so the fit's compiled
 program serves them. A refit counts where the remaining Gauss-Newton step at its result is

@@ -280,6 +280,12 @@ def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
               f"ETA {el / (j + 1) * (len(todo) - j - 1):.0f} s)", flush=True)
 
 
+def _use_out(path: Path) -> None:
+    """Every path of the study (rows, truth, summary) under `path` (`--out`)."""
+    global OUT
+    OUT = path
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--replicates", type=int, default=100)
@@ -291,11 +297,14 @@ def main(argv=None) -> int:
                     help="worker processes at a time (each runs at most 10 replicates)")
     ap.add_argument("--shard", default=None, help=argparse.SUPPRESS)  # "i/n" (a worker)
     ap.add_argument("--report-only", action="store_true", help="summarise the files")
+    ap.add_argument("--out", type=Path, default=OUT,
+                    help=f"results folder (default {OUT.relative_to(ROOT)})")
     ap.add_argument("--part", choices=("all", "liftoff", "modal"), default="all",
                     help="the whole forecast, or the lift-off alone, or the modal quantities "
                          "and preloads alone (their rows then replace the whole forecast's "
                          "quantities of the same names in the summary)")
     args = ap.parse_args(argv)
+    _use_out(args.out)
     n = 4 if args.quick else args.replicates
     part = args.part
     OUT.mkdir(parents=True, exist_ok=True)
@@ -322,7 +331,8 @@ def main(argv=None) -> int:
                 break
             procs = [subprocess.Popen([sys.executable, __file__, "--replicates", str(n),
                                        "--first", str(args.first),
-                                       "--force", str(args.force), "--part", part, "--shard",
+                                       "--force", str(args.force), "--part", part,
+                                       "--out", str(OUT), "--shard",
                                        f"{i}/{args.workers}"]) for i in range(args.workers)]
             if any(p.wait() for p in procs):
                 print("a worker failed; rerun to resume", file=sys.stderr)

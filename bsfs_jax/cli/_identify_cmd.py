@@ -1,4 +1,4 @@
-"""`bsfs identify` and `bsfs plan-test` (parameter identification, issue 4)."""
+"""`bsfs identify` and `bsfs plan-test`: parameter identification from exciter records."""
 
 import importlib
 import sys
