@@ -33,11 +33,12 @@ ALLOWED = {
     "identification": {"bsfs_jax", "files", "params", "physics", "model", "solvers",
                        "machine", "analysis", "design"},
     "plotting": {"analysis", "_files"},
+    "monitoring": {"_files", "_numerics", "files"},
     "reproduce": {"_files", "_numerics", "params", "physics", "model", "solvers", "machine",
                   "analysis", "design", "plotting"},
     "cli": {"_files", "_numerics", "_programs", "_host", "bsfs_jax", "files", "params", "physics",
             "model", "solvers", "machine", "analysis", "design", "identification",
-            "plotting", "reproduce"},
+            "plotting", "reproduce", "monitoring"},
     "bsfs_jax": {"_programs", "_lazy", "_host", "params", "physics", "model", "solvers", "machine"},
 }
 

@@ -20,6 +20,7 @@ _COMMAND_MODULES = [
     "bsfs_jax.cli._continue_cmd",
     "bsfs_jax.cli._identify_cmd",
     "bsfs_jax.cli._predict_cmd",
+    "bsfs_jax.cli._monitor_cmd",
     "bsfs_jax.cli._synth_cmd",
     "bsfs_jax.cli._design_cmd",
     "bsfs_jax.cli._reproduce_cmd",

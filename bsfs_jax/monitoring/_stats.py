@@ -1,0 +1,377 @@
+"""Trend models, their weights and the step test: small numpy/scipy statistics.
+
+Every fit weights test i by `base_i + theta * shape_i`: `base_i` is the test's own
+variance (its standard error squared, 0 when unknown) and `theta` the between-test
+scatter (shape 1) or the Wiener diffusion (shape = hours between tests), estimated so
+that the weighted chi-square equals its degrees of freedom (Paule-Mandel).
+"""
+
+import dataclasses
+
+import numpy as np
+from scipy import optimize, stats
+
+#: Null simulations behind each step test's threshold.
+STEP_SIMULATIONS = 2000
+#: Tests needed on each side of a step.
+MIN_SEGMENT = 3
+#: Parameter draws behind each time-to-limit interval.
+DRAWS = 4000
+_TINY = 1e-24
+
+
+def _floor(y) -> float:
+    return _TINY * (float(np.mean(np.square(y))) + 1.0)
+
+
+def _chi2(X, y, var):
+    sw = 1.0 / np.sqrt(var)
+    beta = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
+    r = y - X @ beta
+    return float(np.sum(r * r / var)), beta
+
+
+def scatter_term(X, y, base, shape) -> float:
+    """theta >= 0 with sum r^2 / (base + theta shape) = n - p at the weighted LS fit
+    (0 when the tests' own errors already explain the spread)."""
+    n, p = X.shape
+    dof = n - p
+    if dof <= 0:
+        return 0.0
+    floor = _floor(y)
+    q = lambda th: _chi2(X, y, base + th * shape + floor)[0] - dof
+    if np.all(base > 0) and q(0.0) <= 0:
+        return 0.0
+    if not np.any(base > 0):  # chi2 = RSS(weights 1/shape) / theta
+        rss = _chi2(X, y, shape)[0]
+        return rss / dof
+    hi = float(np.var(y) / np.mean(shape)) + float(np.max(base / shape)) + floor
+    while q(hi) > 0:
+        hi *= 10.0
+    return float(optimize.brentq(q, 0.0, hi, xtol=1e-14 * hi, rtol=1e-12))
+
+
+@dataclasses.dataclass(frozen=True)
+class Fit:
+    """One trend model fitted to a segment of tests.
+
+    `kind`: "linear" (y = a + b (t - t0)), "exponential" (y = sign exp(a + b (t - t0))) or
+    "wiener" (increments with drift b per hour and diffusion `scatter` per hour).
+    `params` (2,), `cov` (2, 2): a (unit, or log-unit) and b (per hour); `scatter`:
+    between-test variance (unit^2) or Wiener diffusion (unit^2 / h); `dof`: n - 2;
+    `loglik`, `aicc`: of the tests after the first (so all models see the same data)."""
+
+    kind: str
+    t0: float
+    params: np.ndarray
+    cov: np.ndarray
+    scatter: float
+    dof: int
+    loglik: float
+    aicc: float
+    sign: float = 1.0
+    last_t: float = 0.0
+    last_y: float = 0.0
+    last_var: float = 0.0
+    mean_base: float = 0.0
+
+    def mean(self, t, params=None):
+        """The trend at hours `t` (array), with `params` (..., 2) if given."""
+        p = self.params if params is None else params
+        a, b = p[..., 0], p[..., 1]
+        t = np.asarray(t, float)
+        if self.kind == "linear":
+            return a + b * (t - self.t0)
+        if self.kind == "exponential":
+            return self.sign * np.exp(a + b * (t - self.t0))
+        return self.last_y + b * (t - self.last_t)
+
+    def band(self, t, level: float = 0.95):
+        """(mean, lower, upper) of the `level` prediction band of a new test at hours `t`."""
+        t = np.asarray(t, float)
+        m = self.mean(t)
+        q = stats.t.ppf(0.5 + level / 2, max(self.dof, 1))
+        if self.kind == "wiener":
+            dt = np.maximum(t - self.last_t, 0.0)
+            var = (self.cov[1, 1] * dt**2 + self.scatter * dt + self.last_var
+                   + self.mean_base)
+        else:
+            g = np.stack([np.ones_like(t), t - self.t0], -1)
+            if self.kind == "exponential":
+                g = g * m[..., None]
+            var = np.einsum("...i,ij,...j->...", g, self.cov, g) + self.scatter + self.mean_base
+        half = q * np.sqrt(np.maximum(var, 0.0))
+        return m, m - half, m + half
+
+
+def _aicc(loglik: float, n: int, k: int = 3) -> float:
+    aic = -2.0 * loglik + 2 * k
+    return aic + (2.0 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else 0.0)
+
+
+def _inc_cov(t, base, scatter, diffusion, floor):
+    """Covariance (n-1, n-1) of the increments of tests with variances base + scatter
+    (independent) on a Wiener path of `diffusion` per hour."""
+    v = base + scatter + floor
+    c = np.diag(diffusion * np.diff(t) + v[1:] + v[:-1])
+    i = np.arange(len(t) - 2)
+    c[i, i + 1] = c[i + 1, i] = -v[1:-1]
+    return c
+
+
+def _gls(d, X, C):
+    """(beta, cov of beta, Gaussian log-likelihood) of d ~ N(X beta, C)."""
+    L = np.linalg.cholesky(C)
+    Xw, dw = np.linalg.solve(L, X), np.linalg.solve(L, d)
+    beta = np.linalg.lstsq(Xw, dw, rcond=None)[0]
+    r = dw - Xw @ beta
+    ll = -0.5 * (len(d) * np.log(2 * np.pi) + 2 * np.sum(np.log(np.diag(L))) + r @ r)
+    return beta, np.linalg.pinv(Xw.T @ Xw), float(ll)
+
+
+def _inc_loglik(t, y, mean, base, scatter, diffusion=0.0) -> float:
+    """Log-likelihood of the increments (all models are compared on the same data)."""
+    d = np.diff(y) - np.diff(mean)
+    C = _inc_cov(t, base, scatter, diffusion, _floor(y))
+    return _gls(d, np.zeros((len(d), 0)), C)[2]
+
+
+def fit_linear(t, y, base) -> Fit:
+    """Weighted line with between-test scatter; t, y, base: (n,) hours, unit, unit^2."""
+    t0 = float(t[0])
+    X = np.stack([np.ones_like(t), t - t0], 1)
+    th = scatter_term(X, y, base, np.ones_like(t))
+    var = base + th + _floor(y)
+    sw = 1.0 / np.sqrt(var)
+    beta = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
+    cov = np.linalg.pinv((X * sw[:, None]).T @ (X * sw[:, None]))
+    ll = _inc_loglik(t, y, X @ beta, base, th)
+    return Fit("linear", t0, beta, cov, th, len(t) - 2, ll, _aicc(ll, len(t) - 1),
+               last_t=float(t[-1]), mean_base=float(np.mean(base)))
+
+
+def fit_exponential(t, y, base) -> Fit | None:
+    """y = sign exp(a + b (t - t0)), weighted, with scatter; None when y changes sign."""
+    if not (np.all(y > 0) or np.all(y < 0)):
+        return None
+    sign = float(np.sign(y[0]))
+    t0 = float(t[0])
+    tau = t - t0
+    X = np.stack([np.ones_like(t), tau], 1)
+    z = np.log(sign * y)
+    p = np.linalg.lstsq(X, z, rcond=None)[0]
+    th = 0.0
+    floor = _floor(y)
+    for _ in range(30):
+        var = base + th + floor
+        res = optimize.least_squares(
+            lambda q: (sign * np.exp(q[0] + q[1] * tau) - y) / np.sqrt(var), p,
+            method="lm", xtol=1e-14, ftol=1e-14)
+        p_new = res.x
+        r = y - sign * np.exp(p_new[0] + p_new[1] * tau)
+        dof = len(t) - 2
+        q = lambda s: float(np.sum(r * r / (base + s + floor))) - dof
+        if dof <= 0 or (np.all(base > 0) and q(0.0) <= 0):
+            th_new = 0.0
+        elif not np.any(base > 0):
+            th_new = float(np.sum(r * r)) / dof
+        else:
+            hi = float(np.var(y)) + float(np.max(base)) + floor
+            while q(hi) > 0:
+                hi *= 10.0
+            th_new = float(optimize.brentq(q, 0.0, hi, xtol=1e-14 * hi, rtol=1e-12))
+        done = abs(th_new - th) <= 1e-9 * (th + floor) and np.allclose(p_new, p, rtol=1e-10)
+        p, th = p_new, th_new
+        if done:
+            break
+    var = base + th + floor
+    m = sign * np.exp(p[0] + p[1] * tau)
+    J = np.stack([m, m * tau], 1) / np.sqrt(var)[:, None]
+    cov = np.linalg.pinv(J.T @ J)
+    ll = _inc_loglik(t, y, m, base, th)
+    return Fit("exponential", t0, p, cov, th, len(t) - 2, ll, _aicc(ll, len(t) - 1), sign,
+               last_t=float(t[-1]), mean_base=float(np.mean(base)))
+
+
+def fit_wiener(t, y, base) -> Fit | None:
+    """Wiener process with drift plus independent test scatter, fitted by maximum
+    likelihood to the increments (drift by GLS, the diffusion per hour and the scatter
+    profiled); None below 4 tests. The level now is the last test's (its variance: the
+    test's own plus the scatter)."""
+    if len(t) < 4:
+        return None
+    d, dt = np.diff(y), np.diff(t)
+    X = dt[:, None]
+    s0 = float(np.var(d)) + float(np.mean(base)) + _floor(y)
+    fl = _floor(y)
+
+    def nll(u):
+        C = _inc_cov(t, base, s0 * np.exp(u[1]), s0 * np.exp(u[0]) / np.mean(dt), fl)
+        try:
+            return -_gls(d, X, C)[2]
+        except np.linalg.LinAlgError:
+            return np.inf
+
+    best = None
+    for u0 in ([-1.0, -1.0], [-1.0, -20.0], [-20.0, -1.0]):
+        r = optimize.minimize(nll, u0, method="L-BFGS-B", bounds=[(-30, 5), (-30, 5)])
+        if best is None or r.fun < best.fun:
+            best = r
+    sig2 = s0 * np.exp(best.x[0]) / np.mean(dt)
+    tau2 = s0 * np.exp(best.x[1])
+    mu, cov, ll = _gls(d, X, _inc_cov(t, base, tau2, sig2, fl))
+    k = 3
+    n = len(t) - 1
+    aicc = -2 * ll + 2 * k + (2.0 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else 0.0)
+    return Fit("wiener", float(t[0]), np.array([float(y[-1]), float(mu[0])]),
+               np.diag([float(base[-1] + tau2), float(cov[0, 0])]), sig2, len(t) - 2, ll,
+               aicc, last_t=float(t[-1]), last_y=float(y[-1]),
+               last_var=float(base[-1] + tau2), mean_base=float(np.mean(base) + tau2))
+
+
+def fit_models(t, y, base) -> dict[str, Fit]:
+    """Every model that applies to the segment, by name."""
+    fits = {"linear": fit_linear(t, y, base), "exponential": fit_exponential(t, y, base),
+            "wiener": fit_wiener(t, y, base)}
+    return {k: f for k, f in fits.items() if f is not None and np.isfinite(f.aicc)}
+
+
+# ----------------------------------------------------------------------------- the step test
+
+def _scan(X, y, cov, cols, rng, known: bool = False):
+    """Max over candidate columns of the F statistic for adding one column to the
+    generalised LS fit of X (data covariance `cov` (n, n), or its diagonal (n,));
+    returns (F (K,), threshold at 95 %, p-value of the max). `known`: the tests' own
+    errors are known, so the residual variance is taken as at least `cov` says (the
+    F statistic's denominator floored at 1), not fitted down to a lucky small spread."""
+    n, p = X.shape
+    L = np.linalg.cholesky(cov if np.ndim(cov) == 2 else np.diag(cov))
+    Xw, yw, Cw = np.linalg.solve(L, X), np.linalg.solve(L, y), np.linalg.solve(L, cols.T).T
+    M = np.eye(n) - Xw @ np.linalg.pinv(Xw)
+    U = Cw @ M  # (K, n) candidate columns with the trend projected out
+    norm = np.sqrt(np.maximum(np.sum(U * U, 1), 1e-300))
+    U = U / norm[:, None]
+    dof = n - p - 1
+
+    def F(E):  # E: (..., n) residuals of the null fit
+        g = (E @ U.T) ** 2
+        rss0 = np.sum(E * E, -1, keepdims=True)
+        scale = np.maximum(rss0 - g, 1e-300 * rss0 + 1e-300) / dof
+        return g / (np.maximum(scale, 1.0) if known else scale)
+
+    f = F(M @ yw)
+    sims = F(rng.standard_normal((STEP_SIMULATIONS, n)) @ M).max(1)
+    return f, float(np.quantile(sims, 0.95)), float(np.mean(sims >= f.max()))
+
+
+@dataclasses.dataclass(frozen=True)
+class Step:
+    """A step found between tests `index - 1` and `index` of the scanned segment."""
+
+    index: int
+    p_value: float
+
+
+def find_step(t, y, base, rng=None) -> Step | None:
+    """The likelihood-ratio (F) step test, calibrated by simulation under two nulls: a
+    smooth trend with scatter (quadratic from 7 tests, else a line) and a Wiener process
+    with drift and test scatter (its increments' full covariance, maximum likelihood).
+    A step is reported only when both reject at 5 % (each null's max statistic over every
+    split), so histories of either kind without a step report one in under 5 % of cases.
+    None below 2 x MIN_SEGMENT tests."""
+    n = len(t)
+    if n < 2 * MIN_SEGMENT:
+        return None
+    rng = np.random.default_rng(0) if rng is None else rng
+    tau = (t - t[0]) / max(t[-1] - t[0], 1e-300)
+    X = np.stack([np.ones(n), tau] + ([tau**2] if n >= 7 else []), 1)
+    ks = np.arange(MIN_SEGMENT, n - MIN_SEGMENT + 1)
+    cols = (np.arange(n)[None, :] >= ks[:, None]).astype(float)
+    th = scatter_term(X, y, base, np.ones(n))
+    known = bool(np.all(base > 0))
+    f1, thr1, p1 = _scan(X, y, base + th + _floor(y), cols, rng, known)
+    d, dt = np.diff(y), np.diff(t)
+    w = fit_wiener(t, y, base)
+    tau2 = w.last_var - base[-1]
+    cols2 = (np.arange(n - 1)[None, :] == ks[:, None] - 1).astype(float)
+    f2, thr2, p2 = _scan(dt[:, None], d, _inc_cov(t, base, tau2, w.scatter, _floor(y)),
+                         cols2, rng, known)
+    if f1.max() <= thr1 or f2.max() <= thr2:
+        return None
+    j = int(np.argmax(f1 / thr1)) if f1.max() / thr1 >= f2.max() / thr2 else int(
+        np.argmax(f2 / thr2))
+    return Step(int(ks[j]), max(p1, p2))
+
+
+def change_points(t, y, base, rng=None) -> list[int]:
+    """Indices (into t) of the first test after each step, by binary segmentation."""
+    found = []
+
+    def scan(lo, hi):
+        s = find_step(t[lo:hi], y[lo:hi], base[lo:hi], rng)
+        if s is None:
+            return
+        k = lo + s.index
+        found.append(k)
+        scan(lo, k)
+        scan(k, hi)
+
+    scan(0, len(t))
+    return sorted(found)
+
+
+# ------------------------------------------------------------------------- time to a limit
+
+def crossing_draws(fit: Fit, limit: float, falling: bool, rng=None, draws: int = DRAWS):
+    """Hours at which the quantity reaches `limit`, drawn from the fit's uncertainty
+    (parameters as a multivariate t with the fit's dof; for a Wiener fit also the
+    diffusion and the first passage itself). inf where it never does. (draws,)"""
+    rng = np.random.default_rng(1) if rng is None else rng
+    nu = max(fit.dof, 1)
+    chi = np.sqrt(nu / rng.chisquare(nu, draws))
+    w, v = np.linalg.eigh((fit.cov + fit.cov.T) / 2)
+    root = v * np.sqrt(np.maximum(w, 0.0))
+    p = fit.params + (rng.standard_normal((draws, 2)) @ root.T) * chi[:, None]
+    toward = -1.0 if falling else 1.0
+    if fit.kind == "wiener":
+        x = fit.last_y + np.sqrt(fit.last_var) * rng.standard_normal(draws)
+        mu = p[:, 1]
+        s2 = fit.scatter * nu / rng.chisquare(nu, draws)
+        gap = toward * (limit - x)  # > 0: still to go
+        speed = toward * mu
+        out = np.full(draws, np.inf)
+        now = gap <= 0
+        out[now] = fit.last_t
+        go = ~now
+        if fit.scatter <= 0:
+            ok = go & (speed > 0)
+            out[ok] = fit.last_t + gap[ok] / speed[ok]
+            return out
+        # Passage happens with probability 1 (drift toward) or exp(-2|mu| gap / s2).
+        reach = np.where(speed > 0, 1.0,
+                         np.exp(-np.clip(2 * np.abs(speed) * gap / np.maximum(s2, 1e-300), 0.0,
+                                         700.0)))
+        hit = go & (rng.random(draws) < reach)
+        m = np.abs(speed[hit])
+        g = gap[hit]
+        lam = g * g / s2[hit]
+        tt = np.where(m > 0, rng.wald(g / np.maximum(m, 1e-300), lam), np.inf)
+        out[hit] = fit.last_t + tt
+        return out
+    a, b = p[:, 0], p[:, 1]
+    if fit.kind == "linear":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            root_t = fit.t0 + (limit - a) / b
+        now_val = a + b * (fit.last_t - fit.t0)
+    else:
+        if limit * fit.sign <= 0:
+            return np.full(draws, np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            root_t = fit.t0 + (np.log(limit * fit.sign) - a) / b
+        now_val = fit.sign * np.exp(a + b * (fit.last_t - fit.t0))
+    beyond = toward * (now_val - limit) >= 0
+    slope_toward = toward * b * (fit.sign if fit.kind == "exponential" else 1.0) > 0
+    out = np.where(slope_toward, root_t, np.inf)
+    out = np.where(beyond, np.where(slope_toward, np.minimum(root_t, fit.last_t),
+                                    fit.last_t), out)
+    return np.where(np.isfinite(out), out, np.inf)
