@@ -3,7 +3,7 @@
 On the paper test (maximum a posteriori, 3 starts drawn from the prior; and maximum
 likelihood from the prior) and on its profile-likelihood problems (c_b and c_s held at
 t = 1.96, 3, 4 and -1.96 standard errors, the others started on the conditional path), each
-method of `identification._solve.make_solver` runs with the fit's stopping test (remaining
+method of `identification.fitting.solve`'s solver runs with the fit's stopping test (remaining
 Gauss-Newton step < 1e-3 of its standard error) and at most 200 steps. Reported: steps per
 lane, whether the test was met at the returned point, and the rise of 2 x cost (profile).
 MINPACK (scipy, `tests/minpack_fit.py`, 240 evaluations) runs on the
@@ -30,8 +30,13 @@ from minpack_fit import levenberg_marquardt  # noqa: E402
 
 import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
-from identification._fit import full_used_mask, remaining_step, start_points  # noqa: E402
-from identification._solve import SolveOptions, solve  # noqa: E402
+from identification.fitting import (
+    SolveOptions,
+    full_used_mask,
+    remaining_step,
+    solve,
+    start_points,
+)
 
 METHODS = ("dogleg", "lm", "indirect-lm", "gauss-newton")
 TS = (1.96, 3.0, 4.0, -1.96)

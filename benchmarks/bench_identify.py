@@ -145,7 +145,7 @@ def _setup_jax():
 
     jax.config.update("jax_enable_x64", True)
     if os.environ.get("BSFS_CACHE_DIR"):
-        from bsfs_jax.cli._common import setup_jax
+        from bsfs_jax.cli import setup_jax
 
         setup_jax()
 

@@ -37,7 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bsfs_jax.cli._common import setup_jax  # noqa: E402
+from bsfs_jax.cli import setup_jax  # noqa: E402
 
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
@@ -46,7 +46,7 @@ import numpy as np  # noqa: E402
 import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
 from bsfs_jax.files import write_atomic  # noqa: E402
-from identification._problem import is_frf  # noqa: E402
+from identification.measurement import is_frf
 
 FS = 10240.0
 SPEED = 2000.0
@@ -419,7 +419,7 @@ def diagnose(data_dir: Path) -> str:
     of one replicate. Sine harmonics: the residual A - G_lin F at the truth (G_lin: linear
     accelerance), its scatter / stated std, and its mean / stated std, per harmonic.
     """
-    from identification._measurement import linear_acceleration
+    from identification.measurement import linear_acceleration
 
     files = sorted(data_dir.glob("r*.npz"))
     if len(files) < 5:

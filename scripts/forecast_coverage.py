@@ -52,8 +52,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from bsfs_jax.cli._common import setup_jax, write_json  # noqa: E402
-from bsfs_jax.files import write_text_atomic  # noqa: E402
+from bsfs_jax.cli import setup_jax  # noqa: E402
+from bsfs_jax.files import jsonable, write_text_atomic  # noqa: E402
 
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
@@ -278,6 +278,11 @@ def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
         print(f"[{j + 1}/{len(todo)}] replicate {k}: covered {sum(cov)}/{len(cov)}  "
               f"identify {t2 - t1:.1f} s forecast {t3 - t_truth:.1f} s  (elapsed {el:.0f} s, "
               f"ETA {el / (j + 1) * (len(todo) - j - 1):.0f} s)", flush=True)
+
+
+def write_json(path, data) -> None:
+    """JSON written atomically (numpy values as plain numbers)."""
+    write_text_atomic(path, json.dumps(jsonable(data), indent=2) + "\n")
 
 
 def _use_out(path: Path) -> None:

@@ -1,7 +1,7 @@
 """MINPACK's Levenberg-Marquardt (scipy) on a problem's compiled residual and Jacobian.
 
 A cross-check only (tests and the identification benchmark): the fit itself is optimistix
-(`identification/_solve.py`). The stopping rule is the fit's own: the remaining Gauss-Newton
+(`identification/fitting/_solve.py`). The stopping rule is the fit's own: the remaining Gauss-Newton
 step in units of its standard error below `tol`.
 """
 
@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 
-from identification._lm import gn_step_sigma, informative
+from identification.fitting._lm import gn_step_sigma, informative
 
 
 class _Converged(Exception):

@@ -1,4 +1,4 @@
-"""Records near a fold: two stable orbits at one frequency and force (issue 24).
+"""Records near a fold: two stable orbits at one frequency and force.
 
 The bundled through-resonance drive (data/resonance.toml) has, at 100 N, two stable orbits
 between its folds at 1101.2 and 1103.6 Hz (`bsfs continue --params data/resonance.toml
@@ -13,7 +13,7 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._orbit_model import branches, nonlinear_acceleration
+from identification.measurement._orbit_model import branches, nonlinear_acceleration
 
 FREQUENCY = 1102.5
 
@@ -82,7 +82,7 @@ def test_a_sweep_past_a_fold_jumps_to_the_orbit_that_remains(frequency):
     """Below the lower fold (1101.2 Hz) a down-sweep has left the upper branch, above the
     upper fold (1103.6 Hz) an up-sweep has left the lower one: each jumps, as a stepped sine
     does, and lands on the only orbit there, the one the other sweep reaches continuously."""
-    from identification._orbit_model import acceleration_of, swept_orbit
+    from identification.measurement._orbit_model import acceleration_of, swept_orbit
 
     system = bsfs_jax.build_system(bsfs_jax.load_params(idn.DATA_DIR / "resonance.toml"))
     fc = jnp.asarray([-100j])
@@ -96,7 +96,7 @@ def test_a_sweep_past_a_fold_jumps_to_the_orbit_that_remains(frequency):
 def test_a_record_started_between_the_branches_is_not_labelled_with_one():
     """A measured state between the two stable orbits leads Newton to the unstable middle
     orbit: no record can stay there, and the label says unresolved, not a branch."""
-    from identification._orbit_model import acceleration_of, swept_orbit
+    from identification.measurement._orbit_model import acceleration_of, swept_orbit
 
     system = bsfs_jax.build_system(bsfs_jax.load_params(idn.DATA_DIR / "resonance.toml"))
     fc = np.asarray([-100j])
@@ -129,7 +129,7 @@ def test_swept_records_start_from_their_sweeps_orbit(swept_problem, swept_record
     """In the fit a swept record's orbit starts from its anchor, the orbit its sweep
     reaches (`_anchors.py`), not from its measured state: with the headers swapped the
     model of each record is the other branch, hundreds of standard errors off."""
-    from identification._anchors import anchored, same_orbits
+    from identification.measurement._anchors import anchored, same_orbits
 
     pb = swept_problem
     assert pb.structure.sweeps
@@ -156,7 +156,7 @@ def test_swept_records_start_from_their_sweeps_orbit(swept_problem, swept_record
 def test_a_lane_on_a_stale_anchor_is_solved_again(swept_problem):
     """`settle` re-anchors a lane whose fitted orbit is not the one its sweep reaches at
     its result, and solves it again from there."""
-    from identification._anchors import settle
+    from identification.measurement._anchors import settle
 
     pb = swept_problem
     theta = np.zeros((1, pb.n_params))
@@ -183,7 +183,7 @@ def test_a_lane_on_a_stale_anchor_is_solved_again(swept_problem):
 def test_a_fit_of_swept_records_lands_on_their_branches(swept_problem):
     """From quasi-random starts, a fit of the damping on the two records at the fold
     converges, with each record on its own branch."""
-    from identification._report import record_branches
+    from identification.fitting._check import record_branches
 
     pb = swept_problem
     res = idn.fit(pb, starts=4, seed=1)
@@ -214,7 +214,7 @@ def test_a_lightly_damped_up_sweep_follows_its_upper_branch_to_the_fold():
     continuation over the same span in 400 fixed steps (0.29 Hz, 1/20 of the half-power
     bandwidth), each from the last orbit it converged to (near 1050 Hz, where contact loss
     sets in, Newton fails for a few steps and the next converges higher up the branch)."""
-    from identification._orbit_model import (
+    from identification.measurement._orbit_model import (
         SWEEP_SPAN,
         acceleration_of,
         orbit_of,
@@ -231,7 +231,7 @@ def test_a_lightly_damped_up_sweep_follows_its_upper_branch_to_the_fold():
 
     import jax
 
-    from identification._orbit_model import _unknowns, linear_harmonics
+    from identification.measurement._orbit_model import _unknowns, linear_harmonics
 
     fs = f * (1.0 - SWEEP_SPAN * (1.0 - jnp.arange(401) / 400))
     z0 = _unknowns(linear_harmonics(system, fs[0], fc), fs[0], 16)
@@ -254,7 +254,7 @@ def test_past_a_hardening_fold_the_up_sweep_lands_on_the_orbit_that_remains(freq
     a quarter of the linear response; the sweep jumps there, and where no start converges
     at one frequency it jumps again a step further on (a sweep that instead crept on in
     its smallest step ran out of solves, and the synthesis said 'no periodic orbit')."""
-    from identification._orbit_model import acceleration_of, swept_orbit
+    from identification.measurement._orbit_model import acceleration_of, swept_orbit
 
     system = _study_drive(nut_preload=1433.246631862498, bearing_preload=814.6446398656908,
                           c_b=780.8600440859817, c_s=128.13901611273874,

@@ -1,4 +1,4 @@
-"""The data-driven first estimate (issue 24): the first resonance read off the records by a
+"""The data-driven first estimate: the first resonance read off the records by a
 single-mode fit, and the fit's starts moved onto it through the model's linearisation.
 
 Checked against the bundled through-resonance drive's truth (data/resonance.toml): its
@@ -12,8 +12,8 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._fit import start_metric, start_points
-from identification._modal import (
+from identification.fitting._fit import start_metric, start_points
+from identification.fitting._modal import (
     FLOOR_LN_F,
     FLOOR_LN_ZETA,
     first_mode,

@@ -18,9 +18,9 @@ from minpack_fit import levenberg_marquardt
 
 import bsfs_jax
 import identification as idn
-from identification._fit import full_used_mask, no_information_std
-from identification._profile import held_costs
-from identification._solve import SolveOptions, solve
+from identification.fitting._fit import full_used_mask, no_information_std
+from identification.fitting._solve import SolveOptions, solve
+from identification.intervals._profile import held_costs
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +121,8 @@ def test_same_optimum_as_minpack_on_the_preload_loss_set():
 def test_the_truncation_gate_names_the_record_and_its_kind(z, gated):
     """A record whose orbit model is off by more than the gate at the estimate (or whose
     32-harmonic check failed: nan) makes the fit not converged, with a kind for programs."""
-    from identification._fit import FitResult
-    from identification._report import TRUNCATION_GATE, gate_truncation
+    from identification.fitting._check import TRUNCATION_GATE, gate_truncation
+    from identification.fitting._fit import FitResult
 
     res = FitResult(None, np.zeros(1), np.ones(1), 1.0, np.zeros(2), np.zeros((2, 1)), [],
                     True, True, 0.0, 1, 0.0)
@@ -145,8 +145,8 @@ def test_a_record_the_model_does_not_explain_makes_the_fit_not_converged(scales,
     preload robustness study), and the fit says it is not converged, naming the record."""
     import types
 
-    from identification._fit import FitResult
-    from identification._misfit import gate_record_misfit
+    from identification.fitting._fit import FitResult
+    from identification.fitting._misfit import gate_record_misfit
 
     rng = np.random.default_rng(1)
     n = 40
@@ -177,8 +177,8 @@ def test_other_line_counts_and_bands_reuse_the_compiled_programs(no_persistent_c
 
     from bsfs_jax.design._orbit import _linear_start
     from bsfs_jax.machine import bsfs_family
-    from identification import _choice
-    from identification._measurement import receptance
+    from identification.measurement import _choice
+    from identification.measurement._linear import receptance
 
     system = bsfs_jax.build_system(bsfs_jax.preset())
     counter = _CompileCounter("")

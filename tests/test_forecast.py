@@ -68,7 +68,7 @@ def test_intervals_match_a_monte_carlo_of_the_covariance(folders):
     is the draws'; where its second-order check switched to the quadratic model, the delta
     std would have been off (the switch was needed) and the interval is the draws' 2.5-97.5
     % range."""
-    from identification._forecast_run import _modal
+    from identification.forecasting._modal import _modal
 
     ident_dir, _, data = folders
     ident = dataclasses.replace(load_identified(ident_dir), draws=None, draws_kind=None)
@@ -140,7 +140,7 @@ def test_bootstrap_refits_carry_the_estimates_own_skew(folders, tmp_path):
     # The median's shift from the plug-in, over 1000 refits of the same identification
     # in memory (200 leave it +-0.09 std: -0.20, +0.05, -0.01 for seeds 0-2).
     import identification as idn
-    from identification._forecast_run import _modal
+    from identification.forecasting._modal import _modal
 
     res = idn.identify(idn.bundled_records("preload-loss"), None, idn.PRELOAD_FIT)
     many = idn.identified_from_result(res, refits=idn.refit(res, 1000, seed=3))
@@ -174,7 +174,7 @@ def test_bootstrap_refits_carry_the_estimates_own_skew(folders, tmp_path):
 
 
 def _modal_without_draws(ident):
-    from identification._forecast_run import _modal
+    from identification.forecasting._modal import _modal
 
     return _modal(dataclasses.replace(ident, draws=None, draws_kind=None))[0]
 
@@ -187,7 +187,7 @@ def test_posterior_draws_replace_the_gaussian_ones_where_the_delta_is_doubtful(f
     second-order check fails takes its interval from them: it matches those draws pushed
     through the model itself, and is wider than the Gaussian one. Draws of an unconverged
     sampler are not used, and the note says so."""
-    from identification._forecast_run import _modal
+    from identification.forecasting._modal import _modal
 
     ident_dir, _, data = folders
     gaussian = {x.name: x for x in _modal_without_draws(load_identified(ident_dir))}[
@@ -251,7 +251,7 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     """The first joint to open is found where its smallest contact deformation on the
     orbit at the FRC peak crosses zero: below the linearised value (the pair softens), and
     the orbits 2 % either side of it are closed and open."""
-    from identification._liftoff import joint_min_deformation
+    from identification.forecasting._liftoff import joint_min_deformation
 
     ident_dir, _, data = folders
     ident = load_identified(ident_dir)
@@ -273,7 +273,7 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     # and that gradient in the force matches central differences of the deformation on
     # orbits located afresh 0.5 N either side.
     assert q["gradient"] == "implicit"
-    from identification._liftoff import min_deformation
+    from identification.forecasting._liftoff import min_deformation
 
     force = q["plug_in"]
     hint, _ = locate_frc_peak(params, force, settings)
@@ -287,8 +287,8 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     # out) predicts the nonlinear lift-off's second difference along the least determined
     # direction, +-1.96 standard deviations, found by two more searches.
     from identification import forecast_liftoff
-    from identification._forecast_frc_checks import probe_steps
-    from identification._liftoff import carried_hessian, linear_liftoff
+    from identification.forecasting._frc_checks import probe_steps
+    from identification.forecasting._liftoff import carried_hessian, linear_liftoff
 
     start, stop = data["band_hz"]
     _, (values, jac, hess) = linear_liftoff(ident, start, stop)
@@ -307,12 +307,12 @@ def test_liftoff_is_found_on_the_nonlinear_orbits(folders):
     assert abs(second) > 0.1 * q["std"]  # a curvature that matters
     # The search at each refit (the FRC peak followed, one vmapped program) gives the
     # force that the search at the estimate, run afresh there, finds.
-    from identification._liftoff import (
+    from identification.forecasting._liftoff import (
         LIFTOFF_HARMONICS,
         LIFTOFF_SETTINGS_TOL,
         search_on_orbits,
     )
-    from identification._liftoff_draws import liftoff_at_draws
+    from identification.forecasting._liftoff_draws import liftoff_at_draws
 
     hint, _ = locate_frc_peak(params, force, OrbitSettings(
         frc_method="hb", frc_tol=LIFTOFF_SETTINGS_TOL, frc_harmonics=LIFTOFF_HARMONICS))
@@ -334,8 +334,8 @@ def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders)
     c_b is 50 % up the folds are gone (the continuation finds none) and following them
     fails instead of giving a value; the peak is still followed there."""
     from bsfs_jax.design import point_hint
-    from identification._forecast_frc_draws import _calls, _points_at_draws, points_at_draws
-    from identification._forecast_run import _folds
+    from identification.forecasting._forecast import _folds
+    from identification.forecasting._frc_draws import _calls, _points_at_draws, points_at_draws
 
     ident_dir, _, _ = folders
     ident = load_identified(ident_dir)
@@ -383,7 +383,7 @@ def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders)
     assert abs(out[0, 2, 1] - branch.peak.p) > 2.0  # far from the estimate's peak
     # The draws decide: a quantity linear in theta keeps the delta interval; one whose
     # second-order term is a third of the linear spread gets the draws' range.
-    from identification._forecast_frc_checks import from_draws
+    from identification.forecasting._frc_checks import from_draws
 
     g = np.array([0.0, 0.0, 2.0, -1.0, 0.5])
     delta = ident.draws - ident.theta
@@ -407,7 +407,7 @@ def test_second_joints_liftoff_is_found_on_orbits_where_the_first_has_opened(fol
     nonlinear orbits too: its lift-off lies above the linearised value (the bearing has let
     go), outside the linearised interval (the answer this replaced), and the orbits 2 %
     either side of it are closed and open at the nut."""
-    from identification._liftoff import joint_min_deformation
+    from identification.forecasting._liftoff import joint_min_deformation
 
     ident_dir, _, data = folders
     ident = load_identified(ident_dir)
@@ -434,9 +434,9 @@ def test_a_failed_liftoff_search_gives_no_interval_and_says_so(folders):
     interval (not the linearised one, which the orbits miss: 97.0 N linearised against
     101.8 N for the worn drive's nut), and the joint's health line says it was not
     determined instead of giving a margin."""
-    from identification._forecast import Quantity
-    from identification._forecast_run import health
-    from identification._liftoff import undetermined
+    from identification.forecasting._forecast import health
+    from identification.forecasting._intervals import Quantity
+    from identification.forecasting._liftoff import undetermined
 
     _, _, data = folders
     by_name = {x["name"]: Quantity(x["name"], x["unit"], x["value"], x["ci95"], x["method"],
@@ -503,7 +503,7 @@ def test_frc_continued_by_shooting_where_the_working_force_opens_a_joint():
     shooting (harmonic balance converges slowly past contact loss); below, and for a
     method the caller chose, the settings stay."""
     from bsfs_jax.design import OrbitSettings
-    from identification._forecast_run import frc_settings
+    from identification.forecasting._forecast import frc_settings
 
     auto = OrbitSettings()
     assert frc_settings(auto, 100.0, [61.5, 97.2]).frc_method == "shooting"
@@ -519,7 +519,7 @@ def test_costly_lanes_are_cut_into_one_equal_batch_per_thread(monkeypatch):
     call's result in the calls' order, on threads or not."""
     import types
 
-    from identification import _forecast as fc
+    from identification.forecasting import _intervals as fc
 
     theta = np.full(3, -1.0)
     for n, parts, size, count in ((200, 2, 104, 2), (216, 2, 112, 2), (200, 1, 200, 1),
@@ -539,3 +539,29 @@ def test_costly_lanes_are_cut_into_one_equal_batch_per_thread(monkeypatch):
         out = fc.run_batches(fn, calls)
         assert [float(o["sum"]) for o in out] == [11.0 * k for k in range(5)]
         assert [o["arg"] for o in out] == [tuple(map(np.asarray, c)) for c in calls]
+
+
+def test_the_forecast_is_a_typed_result_that_reads_as_its_mapping():
+    """`forecast` returns a `Forecast`: fields by name, the quantities by their name, and
+    `to_dict()` the JSON-ready part, which `json` writes as it is."""
+    import types
+
+    def q(name, value):
+        return types.SimpleNamespace(name=name, value=value,
+                                     as_dict=lambda: {"name": name, "value": value})
+
+    from identification import Forecast
+
+    fc = Forecast(force_n=100.0, band_hz=(900.0, 1400.0),
+                      quantities=[q("resonance_hz", 1121.9)],
+                      per_joint_liftoff=[q("liftoff_force_nut_n", 2400.0)],
+                      health={"nut": {"line": "ok"}}, curves=[], nominal_branch=None)
+    assert fc["force_n"] == fc.force_n == 100.0 and set(fc) >= {"quantities", "health"}
+    assert fc.quantity("liftoff_force_nut_n").value == 2400.0
+    with pytest.raises(KeyError):
+        fc["no_such_field"]
+    d = json.loads(json.dumps(fc.to_dict()))
+    assert d == {"force_n": 100.0, "band_hz": [900.0, 1400.0],
+                 "quantities": [{"name": "resonance_hz", "value": 1121.9}],
+                 "per_joint_liftoff": [{"name": "liftoff_force_nut_n", "value": 2400.0}],
+                 "health": {"nut": {"line": "ok"}}}

@@ -8,7 +8,7 @@ import pytest
 import bsfs_jax
 import identification as idn
 from identification import RecordError, estimate_frf, frf_variance
-from identification._records import Record
+from identification.records._records import Record
 
 TRUTH = idn.DATA_DIR / "truth.toml"
 FS = 10240.0

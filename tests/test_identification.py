@@ -13,8 +13,12 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._measurement import harmonic_analysis, receptance
-from identification._orbit_model import nonlinear_acceleration, nonlinear_acceleration_transient
+from identification.measurement._harmonics import harmonic_analysis
+from identification.measurement._linear import receptance
+from identification.measurement._orbit_model import (
+    nonlinear_acceleration,
+    nonlinear_acceleration_transient,
+)
 
 TRUTH = idn.DATA_DIR / "truth.toml"
 TRUTH_VALUES = dict(nut_k=4.35e-7, bearing_k=2.13e-7, screw_k=250.0, c_b=2000.0, c_s=600.0,
@@ -118,8 +122,8 @@ def test_orbit_records_weigh_the_force_noise_through_the_orbit():
 
     import equinox as eqx
 
-    from identification import _model
-    from identification._groups import sine_variance
+    from identification.measurement import _model
+    from identification.measurement._groups import sine_variance
 
     p = bsfs_jax.preset().replace("thermal.speed_rpm", 2000.0)
     for name, value in dict(nut_k=5.996473e-07, bearing_k=2.439338e-07, screw_k=149.4885,
@@ -194,7 +198,7 @@ def test_orbit_model_matches_long_transient_at_3000n(truth):
     # algebraically there.
     np.testing.assert_allclose(np.asarray(a_hb), np.asarray(a_ref),
                                atol=2e-5 * abs(complex(a_ref[0])))
-    lin = idn._measurement.linear_acceleration(system, 150.0 * jnp.arange(1.0, 4.0), force)
+    lin = idn.measurement.linear_acceleration(system, 150.0 * jnp.arange(1.0, 4.0), force)
     # at 3000 N the joints are strongly nonlinear: the linear model is off by > 1 %
     assert abs(complex(lin[0] - a_ref[0])) > 0.01 * abs(complex(a_ref[0]))
 
@@ -322,7 +326,7 @@ def test_paper_test_converges_and_says_only_the_compliance_is_determined(cli_run
 
 def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_problem):
     """Re-solve the held problem at a reported profile end: 2 x cost rose by 3.84."""
-    from identification._profile import held_costs
+    from identification.intervals._profile import held_costs
 
     out, report = cli_run
     row = report["parameters"]["screw_k"]
@@ -337,7 +341,7 @@ def test_profile_interval_ends_where_the_profile_rises_by_3_84(cli_run, paper_pr
 
 
 def test_starts_spread_quasi_randomly_over_the_prior_95_region(paper_problem):
-    from identification._fit import start_points
+    from identification.fitting._fit import start_points
 
     pts = np.asarray(start_points(paper_problem, 33, 0))
     assert pts.shape == (33, paper_problem.n_params) and np.all(pts[0] == 0.0)  # the prior
@@ -357,7 +361,7 @@ def test_own_halton_sequence_is_scipys_to_the_bit():
     against scipy's own, over the dimensions, seeds and counts a fit draws."""
     from scipy.stats import qmc
 
-    from identification._fit import halton
+    from identification.fitting._fit import halton
 
     for d in range(1, 14):
         for seed in (0, 1, 7, 12345):
@@ -477,7 +481,7 @@ def test_synth_cli_writes_a_loadable_record(tmp_path, truth):
     assert idn.load_record(path).frequency_hz == 150.0
     d = harmonic_analysis(rec)
     system = bsfs_jax.build_system(truth)
-    model = idn._measurement.linear_acceleration(system, 200.0 * jnp.arange(1.0, 4.0),
+    model = idn.measurement.linear_acceleration(system, 200.0 * jnp.arange(1.0, 4.0),
                                                  jnp.asarray(d.force))
     assert abs(complex(model[0]) - d.acceleration[0]) < 0.01 * abs(d.acceleration[0])
 
@@ -569,10 +573,10 @@ def test_static_compliance_gradient_matches_central_differences():
     differences of the compliance itself: the preloads move it, the dampers do not."""
     import glob
 
-    from identification import _model
-    from identification._load import load_records
-    from identification._problem import Problem
-    from identification._report import measurement_data
+    from identification.fitting._problem import Problem
+    from identification.measurement import _model
+    from identification.records._load import load_records
+    from identification.report._report import measurement_data
 
     data = [measurement_data(r) for r in load_records(
         sorted(glob.glob(str(idn.DATA_DIR / "resonance" / "*.csv"))))]

@@ -4,43 +4,36 @@ no two modules import each other, directly or round a loop. Read from the source
 `ast` (imports inside functions and under TYPE_CHECKING count too); no JAX needed."""
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("bsfs_jax", "identification")
 
-# What each layer may import: ARCHITECTURE.md's table, top to bottom. "_files",
-# "_programs", "_numerics", "_lazy" and "_host" are bsfs_jax's own utility modules (files,
-# programs and the host settings are public as bsfs_jax.files, bsfs_jax.cached_jit and
+# What each layer may import: docs/ARCHITECTURE.md's table ("Layers"), read from the
+# document, which is the one statement of the rule. "_files", "_programs", "_numerics",
+# "_lazy" and "_host" are bsfs_jax's own utility modules (files, programs and the host
+# settings are public as bsfs_jax.files, bsfs_jax.cached_jit and
 # bsfs_jax.use_fast_compilation); "bsfs_jax" is its top-level API.
-_UTIL = {"_files", "_numerics"}
-ALLOWED = {
-    "_files": set(),
-    "files": {"_files"},
-    "_numerics": set(),
-    "_lazy": set(),
-    "_host": set(),
-    "_prefetch": set(),
-    "_programs": {"_files", "_prefetch"},
-    "params": {"_files", "_numerics"},
-    "physics": {"_numerics"},
-    "model": {"params", "physics", "_numerics"},
-    "solvers": {"_programs"} | _UTIL,
-    "machine": {"params", "model", "solvers", "_programs", "_lazy"} | _UTIL,
-    "analysis": {"machine", "model", "solvers", "params", "files", "_programs"} | _UTIL,
-    "design": {"machine", "model", "solvers", "params", "_programs", "_lazy"} | _UTIL,
-    # identification sits on bsfs_jax's public API only (no private module of it)
-    "identification": {"bsfs_jax", "files", "params", "physics", "model", "solvers",
-                       "machine", "analysis", "design"},
-    "plotting": {"analysis", "_files"},
-    "monitoring": {"_files", "_numerics", "files"},
-    "reproduce": {"_files", "_numerics", "params", "physics", "model", "solvers", "machine",
-                  "analysis", "design", "plotting"},
-    "cli": {"_files", "_numerics", "_programs", "_host", "bsfs_jax", "files", "params", "physics",
-            "model", "solvers", "machine", "analysis", "design", "identification",
-            "plotting", "reproduce", "monitoring"},
-    "bsfs_jax": {"_programs", "_lazy", "_host", "params", "physics", "model", "solvers", "machine"},
-}
+
+
+def read_layer_table(text: str) -> dict[str, set[str]]:
+    """{layer: the layers it may import} from ARCHITECTURE.md's "Layers" table."""
+    section = text.split("## Layers", 1)[1].split("\n## ", 1)[0]
+    table = {}
+    for line in section.splitlines():
+        if not line.startswith("| `"):
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        table[cells[0].strip("`")] = set(re.findall(r"`([\w.]+)`", cells[-1]))
+    return table
+
+
+ALLOWED = read_layer_table((ROOT / "docs" / "ARCHITECTURE.md").read_text())
+# identification's sub-packages: each a job; they use one another through their
+# `__init__` only (the private-module test below), and only the top-level API and the
+# forecast itself use the forecast.
+FORECAST = "identification.forecasting"
 
 
 def _modules() -> dict[str, Path]:
@@ -174,12 +167,32 @@ def test_no_import_cycles():
 
 def test_the_import_reader_sees_relative_and_function_level_imports():
     """The checks above would pass vacuously if these were missed."""
-    assert "identification._csv" in EDGES["identification._load"]  # from ._csv import
+    assert "identification.records._csv" in EDGES["identification.records._load"]  # ._csv
     assert "bsfs_jax.solvers" in EDGES["bsfs_jax.analysis._orbit_trials"]  # from ..solvers
-    assert "identification._load" in EDGES["identification._report"]  # inside a function
-    EDGES["identification._records"].add("identification._load")  # a loop, made up
+    # inside a function (identification/report/_report.py, `identify`)
+    assert "identification.records" in EDGES["identification.report._report"]
+    EDGES["identification.records._records"].add("identification.records._load")  # made up
     try:
-        assert any({"identification._load", "identification._records"} <= set(c)
-                   for c in _cycles())
+        assert any({"identification.records._load", "identification.records._records"}
+                   <= set(c) for c in _cycles())
     finally:
-        EDGES["identification._records"].discard("identification._load")
+        EDGES["identification.records._records"].discard("identification.records._load")
+
+
+def test_only_the_api_and_the_forecast_use_the_forecast():
+    """The forecast sits on the identification's result: no other job of identification
+    imports it (identification/__init__ re-exports its public names)."""
+    wrong = [f"{m} imports {t}" for m, targets in EDGES.items() for t in targets
+             if t.startswith(FORECAST) and not m.startswith(FORECAST)
+             and m != "identification"]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_a_residual_evaluation_walks_the_measurement_package_only():
+    """The measurement model (identification/measurement) imports no other job of
+    identification but the records it reads: one residual evaluation never leaves it."""
+    own = ("identification.measurement", "identification.records")
+    wrong = [f"{m} imports {t}" for m, targets in EDGES.items()
+             if m.startswith(own[0]) for t in targets
+             if t.startswith("identification") and not t.startswith(own)]
+    assert not wrong, "\n".join(wrong)

@@ -43,7 +43,7 @@ def test_solve_small_gradient_matches_finite_differences():
 def test_chirp_line_screening_of_a_long_record_returns():
     """The vmapped linearisation error over 8192 lines (a 4 s chirp at 10 kHz has 7600)
     returns, and equals the per-line values computed in small batches."""
-    from identification._measurement import linearisation_error
+    from identification.measurement._linear import linearisation_error
 
     system = bsfs_jax.build_system(bsfs_jax.preset("default"))
     f = jax.jit(jax.vmap(linearisation_error, in_axes=(None, 0, 0)))
@@ -127,7 +127,7 @@ def _model_frf(n_lines, seed):
     """An FRF of `n_lines` lines, 50-2500 Hz, of the default drive's linear model with 1 %
     Gaussian noise on Re and Im (as a random test's Welch estimate states them)."""
     from identification import FrfRecord
-    from identification._measurement import receptance
+    from identification.measurement._linear import receptance
 
     f = np.linspace(50.0, 2500.0, n_lines)
     system = bsfs_jax.build_system(bsfs_jax.preset("default"))

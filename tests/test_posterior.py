@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import identification as idn
+from identification.intervals._posterior import RHAT_MAX
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +24,7 @@ def test_nuts_reproduces_the_linearised_posterior_where_it_is_gaussian(preload_f
     post = idn.posterior(res.fit, u, samples=300, warmup=300, chains=2, seed=1)
     assert post.converged, (post.rhat, post.ess, post.divergences)
     assert post.samples.shape == (2, 300, len(u.names))
-    assert np.all(post.rhat < idn._posterior.RHAT_MAX)
+    assert np.all(post.rhat < RHAT_MAX)
     # Means within a fifth of a standard error (the sampling error of ~600 effective
     # draws is 0.04 sigma), spreads within 15 %.
     assert np.all(np.abs(post.mean - u.values) < 0.2 * u.std), (post.mean, u.values)

@@ -13,7 +13,7 @@ from identification import (
     write_record_csv,
     write_record_uff,
 )
-from identification._csv import format_record_csv
+from identification.records._csv import format_record_csv
 
 
 def _write(tmp_path, text, name="rec.csv"):
@@ -59,7 +59,7 @@ def test_uff58_without_acceleration_is_refused(tmp_path):
 
     t, force, _ = _signals()
     path = tmp_path / "force_only.uff"
-    from identification._uff import uff58_set
+    from identification.records._uff import uff58_set
 
     pyuff.UFF(str(path)).write_sets(uff58_set(t, force, 13, id4="frequency_hz=120"), mode="add")
     with pytest.raises(RecordError, match=r"force_only.uff.*acceleration \(type 12\) missing"):
@@ -338,7 +338,7 @@ def test_bad_frf_csv(tmp_path, text, message):
 def _uff_frf(path, **change):
     import pyuff
 
-    from identification._uff import uff58_set
+    from identification.records._uff import uff58_set
 
     f = np.linspace(100.0, 1000.0, 10)
     s = uff58_set(f, (1.0 + 0.5j) * np.ones(10), 12, id4="speed_rpm=0; ambient_c=20",
@@ -436,7 +436,7 @@ def test_antialias_response_is_scipys_butterworth(order):
     """The closed-form response equals scipy.signal's digital and analog Butterworth."""
     from scipy.signal import butter, freqs, sosfreqz
 
-    from identification._antialias import response
+    from identification.records._antialias import response
 
     f = np.linspace(1.0, 5000.0, 50)
     digital = dict(AA, antialias_order=float(order))
@@ -455,9 +455,9 @@ def test_sine_noise_is_read_between_the_harmonic_lines():
     the lines (a record rich in them, as one whose joints open, was weighted as if its
     noise were those harmonics: 10-84x the true noise's RMS in the robustness study)."""
     from identification import harmonic_analysis
-    from identification._measurement import _fit
-    from identification._records import Record
-    from identification._sine_noise import noise_variance
+    from identification.measurement._harmonics import _fit
+    from identification.measurement._sine_noise import noise_variance
+    from identification.records._records import Record
 
     rng = np.random.default_rng(7)
     n, f, sigma = 8192, 150.0, 0.01
@@ -538,7 +538,7 @@ def test_messages_name_values_as_a_person_writes_them(tmp_path):
 
 
 def test_a_record_too_large_for_the_memory_is_refused_before_reading(tmp_path):
-    from identification._load import check_memory
+    from identification.records._load import check_memory
 
     path = write_record_csv(tmp_path / "big.csv", _signals(), META)
     check_memory([path], available=64e9)  # fits

@@ -13,13 +13,13 @@ import pytest
 
 import bsfs_jax
 import identification as idn
-from identification._choice import FRF_LINE_ERROR
-from identification._measurement import (
+from identification.measurement._choice import FRF_LINE_ERROR
+from identification.measurement._linear import (
     chord_corrections,
     linear_acceleration,
     linearisation_error,
 )
-from identification._orbit_model import nonlinear_acceleration
+from identification.measurement._orbit_model import nonlinear_acceleration
 
 
 @pytest.fixture(scope="module")

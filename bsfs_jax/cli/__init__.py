@@ -84,6 +84,16 @@ def _one_line_warnings(command) -> None:
     warnings.showwarning = show
 
 
+def setup_jax() -> None:
+    """The command's own process settings, for a script that runs like the command: 64-bit
+    floats, the persistent compilation cache (`BSFS_CACHE_DIR`, else ~/.cache/bsfs/jax),
+    one BLAS thread, and `choose_process_settings`' defaults where they still take effect.
+    A library user calls nothing of this (see `bsfs_jax.use_fast_compilation`)."""
+    from ._common import setup_jax as _setup_jax
+
+    _setup_jax()
+
+
 def choose_process_settings() -> dict[str, str]:
     """The `bsfs` command's own settings for its process, chosen before equinox is imported
     and before jax starts its backend: `bsfs_jax.use_fast_compilation()`'s (EQX_ON_ERROR=nan

@@ -46,14 +46,14 @@ def run_predict(args) -> int:
                       nominal=nominal)
     except ForecastError as exc:
         raise ui.CLIError(str(exc)) from None
-    quantities = [q.as_dict() for q in fc["quantities"]]
+    result = fc.to_dict()
+    quantities = result["quantities"]
     by_name = {q["name"]: q for q in quantities}
     data = dict(
-        source=str(args.source), force_n=fc["force_n"], band_hz=fc["band_hz"],
+        source=str(args.source), force_n=result["force_n"], band_hz=result["band_hz"],
         speed_rpm=float(ident.params.get("thermal.speed_rpm")),
         fitted=list(ident.names), quantities=quantities,
-        per_joint_liftoff=[q.as_dict() for q in fc["per_joint_liftoff"]],
-        health=fc["health"],
+        per_joint_liftoff=result["per_joint_liftoff"], health=result["health"],
         draws=ident.draws_note,
         note="95 % intervals from the identification's covariance: delta method through "
              "exact implicit gradients, checked at second order (exact Hessian; for the FRC "
@@ -68,7 +68,7 @@ def run_predict(args) -> int:
              "contributes most")
     out = ui.out_dir(args.out)
     ui.write_json(out / "prediction.json", data)
-    fig = forecast_figure(fc["curves"], fc["nominal_branch"], by_name, fc["force_n"])
+    fig = forecast_figure(fc.curves, fc.nominal_branch, by_name, fc.force_n)
     ui.save_figure(fig, out / "prediction.png")
     print(_table(quantities))
     for h in fc["health"].values():
