@@ -77,6 +77,29 @@ def test_no_step_is_reported_on_a_smooth_noisy_history():
     assert mon.change_points(t, y, np.full(t.size, 25.0)) == []
 
 
+def test_wiener_diffusion_by_reml_is_less_biased_and_its_posterior_covers():
+    """15 tests of a random walk (20 N per test, true diffusion 2 N^2/h) with 10 N test
+    errors and 5 N scatter: maximum likelihood gives the diffusion far too little, REML
+    less so, and the posterior behind the time-to-limit draws contains the truth."""
+    rng = np.random.default_rng(8)
+    ml, rl, hit = [], [], []
+    for _ in range(60):
+        t = np.arange(15) * 200.0
+        x = 1000.0 - 0.05 * t + np.concatenate([[0.0], np.cumsum(rng.normal(0, 20.0, 14))])
+        y = x + rng.normal(0, 10.0, 15) + rng.normal(0, 5.0, 15)
+        b = np.full(15, 100.0)
+        ml.append(mon._stats.fit_wiener(t, y, b, reml=False).scatter)
+        f = mon._stats.fit_wiener(t, y, b)
+        rl.append(f.scatter)
+        s, p, cell = f.posterior[0], f.posterior[4], f.posterior[5][0]
+        o = np.argsort(s)
+        c = np.cumsum(p[o])
+        lo, hi = s[o][np.searchsorted(c, 0.025)], s[o][np.searchsorted(c, 0.975)]
+        hit.append(lo - cell / 2 <= 2.0 <= hi + cell / 2)
+    assert np.mean(ml) < 0.6 * 2.0 and 1.3 * np.mean(ml) < np.mean(rl) <= 1.2 * 2.0
+    assert np.mean(hit) >= 0.9
+
+
 def test_time_to_limit_intervals_cover_on_synthetic_histories():
     script = _script()
     rows = [script.run_one(i, 11) for i in range(0, 80, 2)]  # 40 without a step

@@ -113,7 +113,8 @@ class MonitorResult:
                            "a likelihood-ratio (F) scan calibrated by simulation; time to "
                            "limit from 4000 draws of the trends' parameters (multivariate "
                            "t; the models mixed by Akaike weight) and, for a Wiener trend, "
-                           "of the first passage")
+                           "of its diffusion, scatter and drift (restricted-likelihood "
+                           "posterior, flat priors) and of the first passage")
 
 
 def _select(fits: dict) -> Fit | None:

@@ -56,7 +56,9 @@ class Fit:
     """One trend model fitted to a segment of tests.
 
     `kind`: "linear" (y = a + b (t - t0)), "exponential" (y = sign exp(a + b (t - t0))) or
-    "wiener" (increments with drift b per hour and diffusion `scatter` per hour).
+    "wiener" (increments with drift b per hour and diffusion `scatter` per hour, by REML;
+    `posterior`: its (diffusion, scatter, drift) posterior on a grid, see
+    `_wiener_posterior`, which the time-to-limit draws use).
     `params` (2,), `cov` (2, 2): a (unit, or log-unit) and b (per hour); `scatter`:
     between-test variance (unit^2) or Wiener diffusion (unit^2 / h); `dof`: n - 2;
     `loglik`, `aicc`: of the tests after the first (so all models see the same data)."""
@@ -74,6 +76,8 @@ class Fit:
     last_y: float = 0.0
     last_var: float = 0.0
     mean_base: float = 0.0
+    scatter_dof: float = 0.0
+    posterior: tuple | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def mean(self, t, params=None):
         """The trend at hours `t` (array), with `params` (..., 2) if given."""
@@ -193,10 +197,103 @@ def fit_exponential(t, y, base) -> Fit | None:
                last_t=float(t[-1]), mean_base=float(np.mean(base)))
 
 
-def fit_wiener(t, y, base) -> Fit | None:
-    """Wiener process with drift plus independent test scatter, fitted by maximum
-    likelihood to the increments (drift by GLS, the diffusion per hour and the scatter
-    profiled); None below 4 tests. The level now is the last test's (its variance: the
+def _wiener_nll(t, d, X, base, s0, scale, fl, restricted):
+    """Negative (restricted) log-likelihood of the increments d at log variances u =
+    (log diffusion share, log scatter share) of s0; the drift by GLS (profiled out)."""
+
+    def nll(u):
+        C = _inc_cov(t, base, s0 * np.exp(u[1]), s0 * np.exp(u[0]) / scale, fl)
+        try:
+            _, cov, ll = _gls(d, X, C)
+        except np.linalg.LinAlgError:
+            return np.inf
+        if restricted:  # REML: - 1/2 log |X' C^-1 X| = + 1/2 log |cov of the drift|
+            ll = ll + 0.5 * float(np.linalg.slogdet(cov)[1])
+        return -ll
+
+    return nll
+
+
+def _minimise(nll):
+    best = None
+    for u0 in ([-1.0, -1.0], [-1.0, -20.0], [-20.0, -1.0]):
+        r = optimize.minimize(nll, u0, method="L-BFGS-B", bounds=[(-30, 5), (-30, 5)])
+        if best is None or r.fun < best.fun:
+            best = r
+    return best
+
+
+def _log_variance_dof(nll, u, cap: float) -> float:
+    """Degrees of freedom nu of a scaled inverse chi-square for the diffusion, matched to
+    the curvature of the restricted likelihood in its log (var log sigma^2 ~ 2 / nu),
+    with the scatter profiled out; at most `cap`, at least 2."""
+    h = 0.05
+    f0 = nll(u)
+    H = np.empty((2, 2))
+    e = np.eye(2) * h
+    for i in range(2):
+        for j in range(2):
+            H[i, j] = (nll(u + e[i] + e[j]) - nll(u + e[i] - e[j]) - nll(u - e[i] + e[j])
+                       + nll(u - e[i] - e[j])) / (4 * h * h)
+    if not np.all(np.isfinite(H)) or not np.isfinite(f0):
+        return 2.0
+    if H[1, 1] > 1e-8:  # the scatter profiled out: the Schur complement
+        info = H[0, 0] - H[0, 1] ** 2 / H[1, 1]
+    else:
+        info = H[0, 0]
+    if not info > 0:
+        return 2.0
+    return float(np.clip(2.0 * info, 2.0, cap))
+
+
+#: Grid of the Wiener fit's (diffusion, scatter) posterior: points per axis.
+GRID = (48, 24)
+
+
+def _wiener_posterior(t, d, base, fl):
+    """Posterior of (diffusion per hour, scatter) of a Wiener fit on a grid: the restricted
+    likelihood of the increments (the drift integrated out under a flat prior) times flat
+    priors on both variances, so a diffusion estimated near 0 still carries its upper
+    uncertainty. Returns (sig2 (G,), tau2 (G,), drift mean (G,), drift variance (G,),
+    probabilities (G,), cell widths (2,), the last test's own variance)."""
+    dt = np.diff(t)
+    vd = float(np.var(d)) + float(np.mean(base)) + fl
+    s_hi, t_hi = 6.0 * vd / float(np.mean(dt)), 1.5 * vd
+    ns, nt = GRID
+    sg = (np.arange(ns) + 0.5) * s_hi / ns
+    tg = (np.arange(nt) + 0.5) * t_hi / nt
+    S, T = np.meshgrid(sg, tg, indexing="ij")
+    S, T = S.ravel(), T.ravel()
+    m = len(d)
+    v = base[None, :] + T[:, None] + fl  # (G, n)
+    C = np.zeros((len(S), m, m))
+    i = np.arange(m)
+    C[:, i, i] = S[:, None] * dt[None, :] + v[:, 1:] + v[:, :-1]
+    j = np.arange(m - 1)
+    C[:, j, j + 1] = C[:, j + 1, j] = -v[:, 1:-1]
+    L = np.linalg.cholesky(C)
+    rhs = np.broadcast_to(np.stack([dt, d], 1), (len(S), m, 2))
+    W = np.linalg.solve(L, rhs)
+    xw, dw = W[..., 0], W[..., 1]
+    xtx = np.sum(xw * xw, 1)
+    xty = np.sum(xw * dw, 1)
+    r2 = np.sum(dw * dw, 1) - xty**2 / xtx
+    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), 1)
+    ll = -0.5 * (logdet + r2 + np.log(xtx))
+    w = np.exp(ll - ll.max())
+    return (S, T, xty / xtx, 1.0 / xtx, w / w.sum(), np.array([s_hi / ns, t_hi / nt]),
+            float(base[-1]))
+
+
+def fit_wiener(t, y, base, reml: bool = True) -> Fit | None:
+    """Wiener process with drift plus independent test scatter, fitted to the increments
+    (their full covariance; drift by GLS); None below 4 tests. The diffusion per hour and
+    the scatter are estimated by restricted maximum likelihood (REML, the drift profiled
+    out: unbiased where maximum likelihood gives the two variances too little over 10-40
+    tests) unless `reml` is False; `loglik`/`aicc` are always the maximum likelihood's, so
+    the models are compared on the same footing. `scatter_dof`: degrees of freedom of the
+    diffusion estimate (scaled inverse chi-square matched to the REML curvature), used
+    by the time-to-limit draws. The level now is the last test's (its variance: the
     test's own plus the scatter)."""
     if len(t) < 4:
         return None
@@ -204,29 +301,35 @@ def fit_wiener(t, y, base) -> Fit | None:
     X = dt[:, None]
     s0 = float(np.var(d)) + float(np.mean(base)) + _floor(y)
     fl = _floor(y)
-
-    def nll(u):
-        C = _inc_cov(t, base, s0 * np.exp(u[1]), s0 * np.exp(u[0]) / np.mean(dt), fl)
-        try:
-            return -_gls(d, X, C)[2]
-        except np.linalg.LinAlgError:
-            return np.inf
-
-    best = None
-    for u0 in ([-1.0, -1.0], [-1.0, -20.0], [-20.0, -1.0]):
-        r = optimize.minimize(nll, u0, method="L-BFGS-B", bounds=[(-30, 5), (-30, 5)])
-        if best is None or r.fun < best.fun:
-            best = r
-    sig2 = s0 * np.exp(best.x[0]) / np.mean(dt)
-    tau2 = s0 * np.exp(best.x[1])
-    mu, cov, ll = _gls(d, X, _inc_cov(t, base, tau2, sig2, fl))
-    k = 3
+    scale = float(np.mean(dt))
+    ml = _wiener_nll(t, d, X, base, s0, scale, fl, False)
+    best_ml = _minimise(ml)
     n = len(t) - 1
+    nu = float(max(len(t) - 2, 1))
+    if reml:
+        rl = _wiener_nll(t, d, X, base, s0, scale, fl, True)
+        best = _minimise(rl)
+        nu = _log_variance_dof(rl, best.x, nu)
+        try:
+            post = _wiener_posterior(t, d, base, fl)
+        except np.linalg.LinAlgError:
+            post = None
+        if post is not None and not np.all(np.isfinite(post[4])):
+            post = None
+    else:
+        post = None
+        best = best_ml
+    sig2 = s0 * np.exp(best.x[0]) / scale
+    tau2 = s0 * np.exp(best.x[1])
+    mu, cov, _ = _gls(d, X, _inc_cov(t, base, tau2, sig2, fl))
+    ll = -float(best_ml.fun)
+    k = 3
     aicc = -2 * ll + 2 * k + (2.0 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else 0.0)
     return Fit("wiener", float(t[0]), np.array([float(y[-1]), float(mu[0])]),
                np.diag([float(base[-1] + tau2), float(cov[0, 0])]), sig2, len(t) - 2, ll,
                aicc, last_t=float(t[-1]), last_y=float(y[-1]),
-               last_var=float(base[-1] + tau2), mean_base=float(np.mean(base) + tau2))
+               last_var=float(base[-1] + tau2), mean_base=float(np.mean(base) + tau2),
+               scatter_dof=nu, posterior=post)
 
 
 def fit_models(t, y, base) -> dict[str, Fit]:
@@ -291,7 +394,7 @@ def find_step(t, y, base, rng=None) -> Step | None:
     known = bool(np.all(base > 0))
     f1, thr1, p1 = _scan(X, y, base + th + _floor(y), cols, rng, known)
     d, dt = np.diff(y), np.diff(t)
-    w = fit_wiener(t, y, base)
+    w = fit_wiener(t, y, base, reml=False)
     tau2 = w.last_var - base[-1]
     cols2 = (np.arange(n - 1)[None, :] == ks[:, None] - 1).astype(float)
     f2, thr2, p2 = _scan(dt[:, None], d, _inc_cov(t, base, tau2, w.scatter, _floor(y)),
@@ -334,9 +437,18 @@ def crossing_draws(fit: Fit, limit: float, falling: bool, rng=None, draws: int =
     p = fit.params + (rng.standard_normal((draws, 2)) @ root.T) * chi[:, None]
     toward = -1.0 if falling else 1.0
     if fit.kind == "wiener":
-        x = fit.last_y + np.sqrt(fit.last_var) * rng.standard_normal(draws)
-        mu = p[:, 1]
-        s2 = fit.scatter * nu / rng.chisquare(nu, draws)
+        if fit.posterior is not None:  # (diffusion, scatter, drift) from their posterior
+            sg, tg, mg, vg, pg, cell, base_last = fit.posterior
+            k = rng.choice(len(pg), draws, p=pg)
+            s2 = np.maximum(sg[k] + cell[0] * (rng.random(draws) - 0.5), 0.0)
+            t2 = np.maximum(tg[k] + cell[1] * (rng.random(draws) - 0.5), 0.0)
+            mu = mg[k] + np.sqrt(vg[k]) * rng.standard_normal(draws)
+            x = fit.last_y + np.sqrt(base_last + t2) * rng.standard_normal(draws)
+        else:
+            x = fit.last_y + np.sqrt(fit.last_var) * rng.standard_normal(draws)
+            mu = p[:, 1]
+            nu_s = fit.scatter_dof if fit.scatter_dof > 0 else nu
+            s2 = fit.scatter * nu_s / rng.chisquare(nu_s, draws)
         gap = toward * (limit - x)  # > 0: still to go
         speed = toward * mu
         out = np.full(draws, np.inf)
