@@ -27,9 +27,11 @@ Y0, LIMIT, STD, SCATTER, EVERY = 1000.0, 600.0, 10.0, 5.0, 200.0
 KINDS = ("linear", "exponential", "wiener")
 
 
-def _path(kind, rng, t, start_t, start_y, cross_t, sigma):
+def _path(kind, rng, t, start_t, start_y, cross_t, sigma, end=None):
     """The latent level at hours t (array) from (start_t, start_y), reaching LIMIT at
-    cross_t in mean; for a Wiener process also its first passage (on a 1 h grid)."""
+    cross_t in mean; for a Wiener process also its first passage (on a 1 h grid).
+    `end = (hours, level)`: a Wiener path pinned there (a Brownian bridge: the level
+    just before a repair, so the repair restores what the study says)."""
     tau = t - start_t
     if kind == "linear":
         return start_y - (start_y - LIMIT) * tau / (cross_t - start_t), cross_t
@@ -37,10 +39,13 @@ def _path(kind, rng, t, start_t, start_y, cross_t, sigma):
         lam = np.log(start_y / LIMIT) / (cross_t - start_t)
         return start_y * np.exp(-lam * tau), cross_t
     mu = (start_y - LIMIT) / (cross_t - start_t)
-    horizon = start_t + 20 * (cross_t - start_t)
+    horizon = start_t + 20 * (cross_t - start_t) if end is None else end[0]
     grid = np.arange(start_t, horizon + 1.0, 1.0)
     steps = -mu + sigma * rng.standard_normal(len(grid) - 1)
     x = start_y + np.concatenate([[0.0], np.cumsum(steps)])
+    if end is not None:
+        at = np.interp(end[0], grid, x)
+        x = x - (grid - start_t) / (end[0] - start_t) * (at - end[1])
     below = np.nonzero(x <= LIMIT)[0]
     passage = float(grid[below[0]]) if below.size else np.inf
     return np.interp(t, grid, x), passage
@@ -64,9 +69,10 @@ def history(i: int, seed: int):
         if step:  # before: degradation from new to 70-90 % (same kind), then a repair
             pre_end = Y0 * rng.uniform(0.7, 0.9)
             pre_cross = start_t * (Y0 - LIMIT) / (Y0 - pre_end)
-            x[:k], _ = _path(kind, rng, hours[:k], 0.0, Y0, pre_cross, sigma)
+            x[:k], _ = _path(kind, rng, hours[:k], 0.0, Y0, pre_cross, sigma,
+                             end=(start_t, pre_end))
         x[k:], true_t = _path(kind, rng, hours[k:], start_t, Y0, cross, sigma)
-        if np.isfinite(true_t) and true_t <= hours[-1] or np.min(x[k:]) <= LIMIT:
+        if np.isfinite(true_t) and true_t <= hours[-1] or np.min(x) <= LIMIT:
             continue  # crossed already before the last test: draw again
         break
     y = x + rng.normal(0, STD, n) + rng.normal(0, SCATTER, n)

@@ -70,6 +70,17 @@ def test_a_step_is_found_at_its_test_and_the_trend_restarts():
         assert rate == pytest.approx(-0.05, abs=0.03)
 
 
+def test_a_late_repair_followed_by_faster_wear_is_found():
+    """A repair 4 tests from the end after which the preload falls 4x faster: the level
+    step alone is hidden by the new slope; the step with the trend restarting is not."""
+    t = np.arange(24) * 200.0
+    k = 20
+    y = np.where(np.arange(24) < k, 1000.0 - 0.02 * t,
+                 1000.0 - 0.4 * (t - 0.5 * (t[k - 1] + t[k])))
+    y = y + np.random.default_rng(6).normal(0, 10.0, t.size)
+    assert mon.change_points(t, y, np.full(t.size, 100.0)) == [k]
+
+
 def test_no_step_is_reported_on_a_smooth_noisy_history():
     rng = np.random.default_rng(5)
     t = np.arange(30) * 200.0
@@ -88,8 +99,8 @@ def test_wiener_diffusion_by_reml_is_less_biased_and_its_posterior_covers():
         x = 1000.0 - 0.05 * t + np.concatenate([[0.0], np.cumsum(rng.normal(0, 20.0, 14))])
         y = x + rng.normal(0, 10.0, 15) + rng.normal(0, 5.0, 15)
         b = np.full(15, 100.0)
-        ml.append(mon._stats.fit_wiener(t, y, b, reml=False).scatter)
-        f = mon._stats.fit_wiener(t, y, b)
+        ml.append(mon._trends.fit_wiener(t, y, b, reml=False).scatter)
+        f = mon._trends.fit_wiener(t, y, b)
         rl.append(f.scatter)
         s, p, cell = f.posterior[0], f.posterior[4], f.posterior[5][0]
         o = np.argsort(s)

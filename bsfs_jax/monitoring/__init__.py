@@ -14,10 +14,10 @@ from ._monitor import TimeToLimit as TimeToLimit
 from ._monitor import monitor as monitor
 from ._monitor import monitor_quantity as monitor_quantity
 from ._monitor import parse_level as parse_level
+from ._passage import crossing_draws as crossing_draws
 from ._report import monitor_figure as monitor_figure
 from ._report import monitor_html as monitor_html
 from ._report import write_monitor as write_monitor
-from ._stats import Fit as Fit
-from ._stats import change_points as change_points
-from ._stats import crossing_draws as crossing_draws
-from ._stats import fit_models as fit_models
+from ._steps import change_points as change_points
+from ._trends import Fit as Fit
+from ._trends import fit_models as fit_models

@@ -7,7 +7,9 @@ import math
 import numpy as np
 
 from ._history import History, HistoryError
-from ._stats import DRAWS, Fit, change_points, crossing_draws, fit_models
+from ._passage import DRAWS, crossing_draws
+from ._steps import change_points
+from ._trends import Fit, fit_models
 
 _Z = 1.959964
 
