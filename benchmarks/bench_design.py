@@ -26,15 +26,15 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _machine import machine_info, machine_line  # noqa: E402
 
 from bsfs_jax import preset  # noqa: E402
-from bsfs_jax.design import (  # noqa: E402
+from bsfs_jax.design import (
     DESIGN_PARAMETERS,
     METRICS,
     OperatingPoint,
     OrbitSettings,
-    compiled,
+    compiled,  # noqa: E402
     finite_difference_sensitivities,
 )
-from bsfs_jax.design._sensitivity import locate_hint, parameter_values  # noqa: E402
+from bsfs_jax.design.building import locate_hint, parameter_values  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 

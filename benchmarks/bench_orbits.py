@@ -42,7 +42,7 @@ from _machine import machine_info, machine_line  # noqa: E402
 from bsfs_jax import design  # noqa: E402
 from bsfs_jax.analysis import SweepConfig, bsfs_problem, sweep  # noqa: E402
 from bsfs_jax.design import _sensitivity as dsens  # noqa: E402
-from bsfs_jax.design._orbit import linear_guess  # noqa: E402
+from bsfs_jax.design.building import linear_guess  # noqa: E402
 from bsfs_jax.machine import bsfs_family, modes, simulate  # noqa: E402
 from bsfs_jax.model import build_system  # noqa: E402
 from bsfs_jax.params import preset  # noqa: E402

@@ -286,7 +286,7 @@ def main():
     import inspect
     from collections import Counter
 
-    from bsfs_jax.analysis._verify import minimum_transient
+    from bsfs_jax.analysis import minimum_transient
     from bsfs_jax.solvers import check_orbits
 
     vset = VerifySettings()

@@ -7,15 +7,13 @@ import numpy as np
 import pytest
 
 import bsfs_jax
-from bsfs_jax.design import (
-    OrbitSettings,
+from bsfs_jax.design import OrbitSettings, locate_frc_peak, with_values
+from bsfs_jax.design.building import (
     fold_frequency_value,
     frc_peak_frequency_value,
     frc_peak_value,
     frc_point_values,
-    locate_frc_peak,
     point_hint,
-    with_values,
 )
 from bsfs_jax.solvers import ImplicitForward
 

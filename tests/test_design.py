@@ -26,7 +26,7 @@ from bsfs_jax.design import (
     sensitivities,
     verify_by_simulation,
 )
-from bsfs_jax.design._sensitivity import parameter_values
+from bsfs_jax.design.building import parameter_values
 
 # A representative subset for the (expensive) orbit metrics: a count, an angle, the
 # speed through the thermal chain, a mass, a damping and l_0.
@@ -313,7 +313,7 @@ def test_peak_search_near_a_branch_finds_the_whole_band_peak(params):
     whole-band search finds, in fewer points; the folded 100 N curve, the
     nut preload 1 % up."""
     from bsfs_jax.design import locate_frc_peak, with_values
-    from bsfs_jax.design._orbit import locate_frc_peak_near
+    from bsfs_jax.design.building import locate_frc_peak_near
 
     settings = dataclasses.replace(FRC_100N, frc_method="shooting")
     _, nominal = locate_frc_peak(params, 100.0, settings)
@@ -333,7 +333,8 @@ def test_auto_frc_goes_to_shooting_where_a_joint_opens(params):
     lift-off force over the band lies between 10 N and 100 N on the default drive, and
     each joint's equals the force at which its linear joint displacement reaches the
     contact window (the relative displacement the preload deformation allows)."""
-    from bsfs_jax.design import OPENS_FRACTION, opens_joint
+    from bsfs_jax.design import opens_joint
+    from bsfs_jax.design.building import OPENS_FRACTION
     from bsfs_jax.machine import joint_windows, linear_frf, linear_liftoff_force, linearise, modes
 
     f1 = float(modes(params).frequencies_hz[0])
@@ -420,7 +421,8 @@ def _result(names, normalised, value=2.0):
 
 
 def test_a_wrong_gradient_is_flagged_never_passed():
-    from bsfs_jax.design import compare_gradients, gradient_not_checked, largest_entries
+    from bsfs_jax.design import compare_gradients
+    from bsfs_jax.design.building import gradient_not_checked, largest_entries
 
     exact = _result(["a", "b", "c"], [0.8, -0.3, 1e-6])
     assert largest_entries(exact) == ("a", "b")
@@ -512,8 +514,8 @@ def test_peak_hint_layout_is_the_located_hints(params, frc_100n):
     import jax
 
     from bsfs_jax.design import get_metric
-    from bsfs_jax.design._orbit import peak_hint_layout
     from bsfs_jax.design._sensitivity import locate_hint
+    from bsfs_jax.design.building import peak_hint_layout
 
     op = OperatingPoint(1.0, 100.0)
     layout = peak_hint_layout(params, 100.0, FRC_100N)

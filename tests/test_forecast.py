@@ -333,7 +333,7 @@ def test_frc_points_followed_to_the_draws_are_the_points_located_afresh(folders)
     at two refits and at the damper c_b 20 % up (about 4 standard deviations). Where
     c_b is 50 % up the folds are gone (the continuation finds none) and following them
     fails instead of giving a value; the peak is still followed there."""
-    from bsfs_jax.design import point_hint
+    from bsfs_jax.design.building import point_hint
     from identification.forecasting._forecast import _folds
     from identification.forecasting._frc_draws import _calls, _points_at_draws, points_at_draws
 

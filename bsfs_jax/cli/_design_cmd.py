@@ -132,17 +132,15 @@ def run_sensitivity(args) -> int:
     from .._programs import in_background
     from ..design import (
         DESIGN_PARAMETERS,
-        check_design_inputs,
         compare_gradients,
         crosscheck_markdown,
         finite_difference_sensitivities,
         get_metric,
-        gradient_not_checked,
         paper_crosscheck,
-        prefetch_programs,
         probe_gradient,
         sensitivities,
     )
+    from ..design.building import check_design_inputs, gradient_not_checked, prefetch_programs
 
     params = ui.load_params_from_args(args)
     names = _names(args.vary) if args.vary else DESIGN_PARAMETERS
@@ -237,7 +235,8 @@ def run_sensitivity(args) -> int:
 
 
 def run_optimize(args) -> int:
-    from ..design import get_metric, optimization_start, optimize, verify_by_simulation
+    from ..design import get_metric, optimize, verify_by_simulation
+    from ..design.building import optimization_start
     from ..files import write_text_atomic
     from ..params import params_to_toml
     from ..plotting import optimization_summary
@@ -302,7 +301,8 @@ def _probe_point(args, metric, params, names, where: str) -> dict:
     """The exact gradient of the metric at one design, probed by central differences on
     its largest entries (or the record that it was not checked). At the start point a
     disagreement refuses the optimisation: BFGS would follow a wrong gradient."""
-    from ..design import check_gradient, gradient_not_checked
+    from ..design import check_gradient
+    from ..design.building import gradient_not_checked
 
     if args.no_fd_probe:
         return gradient_not_checked()

@@ -24,16 +24,9 @@ if TYPE_CHECKING:
     from ._crosscheck import PAPER_TRENDS as PAPER_TRENDS
     from ._crosscheck import crosscheck_markdown as crosscheck_markdown
     from ._crosscheck import paper_crosscheck as paper_crosscheck
-    from ._frc_follow import follow_point as follow_point
-    from ._frc_follow import follow_start as follow_start
-    from ._frc_follow import follow_start_and_gradient as follow_start_and_gradient
-    from ._frc_follow import follow_to as follow_to
-    from ._frc_follow import orbit_samples_at as orbit_samples_at
     from ._gradcheck import FD_TOLERANCE as FD_TOLERANCE
     from ._gradcheck import check_gradient as check_gradient
     from ._gradcheck import compare_gradients as compare_gradients
-    from ._gradcheck import gradient_not_checked as gradient_not_checked
-    from ._gradcheck import largest_entries as largest_entries
     from ._gradcheck import probe_gradient as probe_gradient
     from ._metrics import METRICS as METRICS
     from ._metrics import Metric as Metric
@@ -42,31 +35,17 @@ if TYPE_CHECKING:
     from ._metrics import frf_peak_frequency as frf_peak_frequency
     from ._metrics import get_metric as get_metric
     from ._optimize import OptimizationResult as OptimizationResult
-    from ._optimize import OptimizationStart as OptimizationStart
     from ._optimize import default_bounds as default_bounds
-    from ._optimize import optimization_start as optimization_start
     from ._optimize import optimize as optimize
     from ._optimize import verify_by_simulation as verify_by_simulation
-    from ._orbit import OPENS_FRACTION as OPENS_FRACTION
     from ._orbit import OrbitSettings as OrbitSettings
-    from ._orbit import PeakHint as PeakHint
-    from ._orbit import fold_frequency_value as fold_frequency_value
-    from ._orbit import frc_peak_frequency_value as frc_peak_frequency_value
-    from ._orbit import frc_peak_value as frc_peak_value
-    from ._orbit import frc_point_values as frc_point_values
     from ._orbit import locate_frc_peak as locate_frc_peak
-    from ._orbit import locate_frc_peak_near as locate_frc_peak_near
     from ._orbit import opens_joint as opens_joint
-    from ._orbit import peak_hint_layout as peak_hint_layout
-    from ._orbit import peak_orbit_samples as peak_orbit_samples
     from ._orbit import periodic_orbit as periodic_orbit
-    from ._orbit import point_hint as point_hint
     from ._sensitivity import SensitivityResult as SensitivityResult
-    from ._sensitivity import check_design_inputs as check_design_inputs
     from ._sensitivity import compiled as compiled
     from ._sensitivity import evaluate as evaluate
     from ._sensitivity import finite_difference_sensitivities as finite_difference_sensitivities
-    from ._sensitivity import prefetch_programs as prefetch_programs
     from ._sensitivity import sensitivities as sensitivities
     from ._sensitivity import with_values as with_values
 
@@ -77,8 +56,6 @@ _LAZY = {
     "FD_TOLERANCE": "._gradcheck",
     "check_gradient": "._gradcheck",
     "compare_gradients": "._gradcheck",
-    "gradient_not_checked": "._gradcheck",
-    "largest_entries": "._gradcheck",
     "probe_gradient": "._gradcheck",
     "METRICS": "._metrics",
     "Metric": "._metrics",
@@ -87,41 +64,22 @@ _LAZY = {
     "frf_peak_frequency": "._metrics",
     "get_metric": "._metrics",
     "OptimizationResult": "._optimize",
-    "OptimizationStart": "._optimize",
     "default_bounds": "._optimize",
-    "optimization_start": "._optimize",
     "optimize": "._optimize",
     "verify_by_simulation": "._optimize",
-    "follow_point": "._frc_follow",
-    "follow_start": "._frc_follow",
-    "follow_start_and_gradient": "._frc_follow",
-    "follow_to": "._frc_follow",
-    "orbit_samples_at": "._frc_follow",
-    "OPENS_FRACTION": "._orbit",
     "OrbitSettings": "._orbit",
-    "PeakHint": "._orbit",
-    "fold_frequency_value": "._orbit",
-    "frc_peak_frequency_value": "._orbit",
-    "frc_peak_value": "._orbit",
-    "frc_point_values": "._orbit",
     "locate_frc_peak": "._orbit",
-    "locate_frc_peak_near": "._orbit",
     "opens_joint": "._orbit",
-    "peak_orbit_samples": "._orbit",
     "periodic_orbit": "._orbit",
-    "peak_hint_layout": "._orbit",
-    "point_hint": "._orbit",
     "DEFAULT_FORCE_N": "._catalogue",
     "DEFAULT_FREQUENCY_HZ": "._catalogue",
     "DESIGN_PARAMETERS": "._catalogue",
     "METRIC_INFO": "._catalogue",
     "MetricInfo": "._catalogue",
     "SensitivityResult": "._sensitivity",
-    "check_design_inputs": "._sensitivity",
     "compiled": "._sensitivity",
     "evaluate": "._sensitivity",
     "finite_difference_sensitivities": "._sensitivity",
-    "prefetch_programs": "._sensitivity",
     "sensitivities": "._sensitivity",
     "with_values": "._sensitivity",
 }

@@ -10,7 +10,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import bsfs_jax
-from bsfs_jax.design import OPENS_FRACTION  # the threshold of design.opens_joint
+from bsfs_jax.design.building import OPENS_FRACTION
 
 from ..measurement import require_x64
 from ._frc_checks import from_draws, from_probes, probe_steps
@@ -40,7 +40,7 @@ def _folds(branch):
 
 
 def _frc_quantities(ident, force, start, stop, settings, damping_ratio):
-    from bsfs_jax.design import point_hint
+    from bsfs_jax.design.building import point_hint
 
     params = ident.params_at(ident.theta)
     hint, branch = locate_peak(params, force, start, stop, settings)

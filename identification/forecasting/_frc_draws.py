@@ -51,7 +51,7 @@ def _points_at_draws(coords, theta, thetas, force, hints, weights):
     import jax
     import jax.numpy as jnp
 
-    from bsfs_jax.design import follow_point, follow_start_and_gradient
+    from bsfs_jax.design.building import follow_point, follow_start_and_gradient
 
     def one(hint, weight):
         start, gradient = follow_start_and_gradient(coords.at, theta, force, hint, weight)

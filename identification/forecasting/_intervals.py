@@ -412,7 +412,8 @@ def locate_peak(params, force, start, stop, settings, near=None):
     """(hint, branch) of the FRC; a band without an interior peak is refused. `near`: the
     branch at a nearby force or parameters, whose peak's stretch is continued instead of
     the band (`design.locate_frc_peak_near`; the band where that stretch holds no peak)."""
-    from bsfs_jax.design import locate_frc_peak, locate_frc_peak_near
+    from bsfs_jax.design import locate_frc_peak
+    from bsfs_jax.design.building import locate_frc_peak_near
     from bsfs_jax.solvers import SolverError
 
     try:

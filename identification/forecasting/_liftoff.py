@@ -124,7 +124,7 @@ def joint_min_deformation(params, force, hint, joint):
     import jax
     import jax.numpy as jnp
 
-    from bsfs_jax.design import peak_orbit_samples
+    from bsfs_jax.design.building import peak_orbit_samples
 
     deformations = joint_deformations(*peak_orbit_samples(params, force, hint), joint)
     # The smallest sample, chosen without gradient, then differentiated (the minimum over

@@ -50,7 +50,7 @@ def joint_deformations(ys, system, joint):
 def min_deformation_at(params, force, hint, v, joint):
     """The smallest contact deformation [m] of joint `joint` (traced index into `JOINTS`)
     over the orbit with unknowns `v` (`design.orbit_samples_at`)."""
-    from bsfs_jax.design import orbit_samples_at
+    from bsfs_jax.design.building import orbit_samples_at
 
     return joint_deformations(*orbit_samples_at(params, force, hint, v), joint).min()
 
@@ -63,7 +63,7 @@ def _liftoff_lanes(coords, theta, thetas, f_star, grad, hint, joint):
     import jax
     import jax.numpy as jnp
 
-    from bsfs_jax.design import follow_start, follow_to
+    from bsfs_jax.design.building import follow_start, follow_to
 
     x0, lu, piv, amplitude_ref = follow_start(coords.at(theta), f_star, hint, 1.0)
     n = x0.shape[0] // 2
