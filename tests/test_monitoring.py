@@ -179,6 +179,24 @@ def test_cli_monitors_a_history_csv(tmp_path, capsys):
     assert "data:image/png;base64," in page and "<table>" in page
 
 
+def test_cli_tells_a_history_from_a_manifest_by_its_header(tmp_path, capsys):
+    csv = _history_csv(tmp_path / "h.csv", step=6)
+    code = main(["monitor", str(csv), "--limit", "nut_preload=70%", "--out",
+                 str(tmp_path / "out")])
+    assert code == 0, capsys.readouterr().err
+    data = json.loads((tmp_path / "out" / "monitor.json").read_text())
+    assert data["quantities"]["nut_preload"]["change_points_h"] == [1200.0]
+    capsys.readouterr()
+    manifest = tmp_path / "m.csv"
+    manifest.write_text("folder,hours\nnone_a,0\nnone_b,200\nnone_c,400\n")
+    code = main(["monitor", str(manifest), "--out", str(tmp_path / "out2")])
+    err = capsys.readouterr().err
+    assert code != 0 and "none_a" in err and len(err.strip().splitlines()) == 1
+    code = main(["monitor", str(csv), "--history", str(csv), "--out", str(tmp_path / "o3")])
+    err = capsys.readouterr().err
+    assert code != 0 and "give one history" in err
+
+
 def _identify_folder(path, value, std, f1):
     path.mkdir(parents=True)
     report = {"parameters": {

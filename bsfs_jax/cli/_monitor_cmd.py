@@ -16,7 +16,10 @@ def register(sub) -> None:
         "prediction band, change points, the hours to each --limit as a 95 %% interval, "
         "the probability of reaching it by --next-test, a status and an action per joint. "
         "Writes monitor.json, monitor.png and monitor.html.")
-    src = m.add_mutually_exclusive_group(required=True)
+    m.add_argument("file", nargs="?", metavar="CSV",
+                   help="a history CSV or a manifest CSV, told apart by the header's first "
+                   "column ('hours' or 'folder')")
+    src = m.add_mutually_exclusive_group()
     src.add_argument("--history", metavar="CSV", help="a history CSV (hours, NAME, NAME_std)")
     src.add_argument("--manifest", metavar="CSV",
                      help="a manifest CSV 'folder,hours' of `bsfs identify` output folders")
@@ -32,13 +35,32 @@ def register(sub) -> None:
     m.set_defaults(func=run_monitor)
 
 
+def _source(args) -> tuple[str, str]:
+    """(kind, path) of the history: --history, --manifest, or the positional file by its
+    header's first column."""
+    given = [x for x in (args.file, args.history, args.manifest) if x]
+    if len(given) != 1:
+        raise ui.CLIError("give one history: a CSV file (history or manifest), "
+                          "or --history CSV, or --manifest CSV")
+    if args.history or args.manifest:
+        return ("history", args.history) if args.history else ("manifest", args.manifest)
+    try:
+        with open(args.file, encoding="utf-8-sig") as fh:
+            first = fh.readline()
+    except OSError as exc:
+        raise ui.CLIError(f"'{args.file}': cannot read ({exc.strerror}); check the path") from None
+    head = first.replace(";", ",").split(",")[0].strip().strip('"').lower()
+    return ("manifest", args.file) if head == "folder" else ("history", args.file)
+
+
 def run_monitor(args) -> int:
     from .. import monitoring as mon
 
+    kind, path = _source(args)
     ui.out_dir(args.out, create=False)
     try:
-        history = (mon.read_history_csv(args.history) if args.history
-                   else mon.read_manifest(args.manifest))
+        history = (mon.read_history_csv(path) if kind == "history"
+                   else mon.read_manifest(path))
         limits = dict(mon.parse_level(x) for x in args.limit)
         warns = dict(mon.parse_level(x) for x in args.warn)
         ui.say(f"monitor: {len(history.hours)} tests, {len(history.series)} quantities "
