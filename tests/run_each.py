@@ -51,7 +51,7 @@ _EXPECTED_S = {"test_identification.py": 462, "test_forecast.py": 397, "test_per
                "test_model.py": 18, "test_figures.py": 9, "test_records.py": 7,
                "test_status.py": 6, "test_programs.py": 5, "test_params.py": 4,
                "test_tdms.py": 4, "test_layers.py": 3, "test_monitoring.py": 125,
-               "test_long_records.py": 100, "test_host.py": 25,
+               "test_line_correlation.py": 200, "test_long_records.py": 100, "test_host.py": 25,
                "test_notebooks.py::test_notebook_runs[design_study]": 110,
                "test_notebooks.py::test_notebook_runs[preload_loss]": 100,
                "test_notebooks.py::test_notebook_runs[identification]": 30,

@@ -32,6 +32,25 @@ LEVEL = Z95**2  # 3.84
 MAX_T = 8.0
 
 
+def levels(unc: Uncertainty) -> np.ndarray:
+    """(p,) rise of 2 x cost that ends each parameter's 95 % interval: 3.84 times the
+    variance inflation its standard error carries (the noise scale's s^2 where the
+    residuals show model error, and the correlated FRF lines' widening squared), so that a
+    quadratic cost gives the linearised interval back."""
+    f = np.asarray(unc.noise.get("line_widening", np.ones(len(unc.names))), float)
+    return LEVEL * float(unc.noise.get("scaled_by", 1.0)) * f**2
+
+
+def path_step(unc: Uncertainty, i: int) -> np.ndarray:
+    """(p,) the conditional path of parameter i per standard error: theta moves by this
+    times t when theta_i moves by t of its standard errors and the others follow their
+    conditional optimum (the direction of the fit's own information, not of the widened
+    covariance)."""
+    f = np.asarray(unc.noise.get("line_widening", np.ones(len(unc.names))), float)
+    c0 = unc.covariance / np.outer(f, f)
+    return unc.scaled_std[i] * c0[:, i] / c0[i, i]
+
+
 def held_costs(problem, starts, held_index, held_values):
     """2 x cost with theta_i held at a value and the others re-optimised, for many (start,
     i, value) requests at once: one batched optimistix solve (`fit.solve`) of the fit's own
@@ -48,18 +67,20 @@ def held_costs(problem, starts, held_index, held_values):
 
 
 def linearity_check(result, unc: Uncertainty) -> np.ndarray:
-    """(p, 2) rise of 2 x cost at t = -1.96 and +1.96 along each parameter's path, / 3.84."""
+    """(p, 2) rise of 2 x cost at t = -1.96 and +1.96 along each parameter's path, / its
+    level (`levels`: 3.84 where nothing widens the interval)."""
     pb = result.problem
     base = 2.0 * result.cost  # the fit's own 2 x cost at the optimum (no re-evaluation)
     out = np.full((pb.n_params, 2), np.nan)
     cov = unc.covariance
+    level = levels(unc)
     points, where = [], []
     for i in range(pb.n_params):
         s = np.sqrt(cov[i, i])
         if not (np.isfinite(s) and s > 0 and np.isfinite(unc.scaled_std[i])):
             continue
         for k, t in enumerate((-Z95, Z95)):
-            points.append(result.theta + t * cov[:, i] / s)
+            points.append(result.theta + t * path_step(unc, i))
             where.append((i, k))
     if points:
         # The cost at each point: the fit's own compiled solve with nothing free (it stops
@@ -67,7 +88,7 @@ def linearity_check(result, unc: Uncertainty) -> np.ndarray:
         at = solve(np.stack(points), False, pb.fit_data, pb.structure)
         two = np.where(np.isfinite(at["cost"]), 2.0 * at["cost"], np.inf)
         for (i, k), c in zip(where, two):
-            out[i, k] = (c - base) / LEVEL
+            out[i, k] = (c - base) / level[i]
     return out
 
 
@@ -79,34 +100,33 @@ def _rises(result, unc, requests):
         return []
     base = 2.0 * result.cost  # the fit's own 2 x cost at the optimum (no re-evaluation)
     s = unc.scaled_std
-    cov = unc.covariance
     idx = np.asarray([i for i, _, _ in requests])
-    starts = np.stack([result.theta + sign * t * cov[:, i] / s[i] for i, sign, t in requests])
+    starts = np.stack([result.theta + sign * t * path_step(unc, i) for i, sign, t in requests])
     held = np.asarray([result.theta[i] + sign * t * s[i] for i, sign, t in requests])
     _, costs = held_costs(result.problem, starts, idx, held)
     return [c - base for c in costs]
 
 
-def _end_search(r1):
-    """Generator of the t > 0 where the profile's rise reaches 3.84 (r1 = rise at 1.96):
+def _end_search(r1, level: float = LEVEL):
+    """Generator of the t > 0 where the profile's rise reaches `level` (r1 = rise at 1.96):
     yields the next t to evaluate, is sent its rise, returns t (inf: never, by MAX_T)."""
     t0, r0 = 0.0, 0.0
     t1 = Z95
     for _ in range(12):
-        if abs(r1 - LEVEL) < 1e-3 * LEVEL:
+        if abs(r1 - level) < 1e-3 * level:
             return t1
-        if r1 < LEVEL:  # not there yet: extrapolate outwards (rise ~ t^2)
-            t_new = t1 * np.sqrt(LEVEL / max(r1, 1e-12)) if r1 > 0 else 2 * t1
+        if r1 < level:  # not there yet: extrapolate outwards (rise ~ t^2)
+            t_new = t1 * np.sqrt(level / max(r1, 1e-12)) if r1 > 0 else 2 * t1
             t_new = min(t_new, 2.0 * t1)
             if t1 >= MAX_T:
                 return np.inf
             t0, r0, t1 = t1, r1, min(t_new, MAX_T)
         else:  # bracketed between t0 and t1: secant on sqrt(rise)
             a, b = np.sqrt(max(r0, 0.0)), np.sqrt(r1)
-            t_new = t0 + (t1 - t0) * (np.sqrt(LEVEL) - a) / max(b - a, 1e-12)
+            t_new = t0 + (t1 - t0) * (np.sqrt(level) - a) / max(b - a, 1e-12)
             t_new = min(max(t_new, t0 + 0.05 * (t1 - t0)), t1 - 0.05 * (t1 - t0))
             r_new = yield t_new
-            if r_new < LEVEL:
+            if r_new < level:
                 t0, r0 = t_new, r_new
                 continue
             t1, r1 = t_new, r_new
@@ -115,12 +135,12 @@ def _end_search(r1):
     return t1
 
 
-def _profile_ends(result, unc, first):
+def _profile_ends(result, unc, first, level):
     """{(i, k): t_end} for every side in `first` ({(i, k): rise at 1.96}); the searches of
     all sides advance together, each round one batched solve."""
     ends, live = {}, {}
     for key, r1 in first.items():
-        gen = _end_search(r1)
+        gen = _end_search(r1, level[key[0]])
         try:
             live[key] = (gen, next(gen))
         except StopIteration as stop:
@@ -157,13 +177,14 @@ def profile_intervals(result, unc: Uncertainty, *, force: bool = False) -> tuple
     log = pb.is_log
     sides = [(i, k) for i in np.nonzero(finite)[0] for k in (0, 1)
              if force or abs(table[i, k] - 1.0) > LINEAR_TOL]
+    level = levels(unc)
     rises = _rises(result, unc, [(i, (-1.0, 1.0)[k], Z95) for i, k in sides])
     first = {}
     for (i, k), r1 in zip(sides, rises):
-        table[i, k] = r1 / LEVEL
+        table[i, k] = r1 / level[i]
         if force or abs(table[i, k] - 1.0) > LINEAR_TOL:
             first[(i, k)] = r1
-    for (i, k), t in sorted(_profile_ends(result, unc, first).items()):
+    for (i, k), t in sorted(_profile_ends(result, unc, first, level).items()):
         sign = (-1.0, 1.0)[k]
         method[i] = "profile"
         if not np.isfinite(t):

@@ -15,6 +15,11 @@ damping ratio over 200 replicates of the preload-loss test), while the estimate 
 close to unbiased; over refits it moves as the exact refits do (-0.015 against -0.015 on the
 bundled drive, one-off check `forecast_bootstrap_check.py`, in git at 9d7344c).
 
+Where neighbouring FRF lines' errors are correlated (a Hann-windowed FRF, `_lines.py`),
+the refits, which perturb every line independently, spread too little; each refit's
+deviation from the estimate is then stretched by its parameter's widening factor, which
+gives their spread the scale of the widened covariance while keeping their shape.
+
 The refits run through `fit.solve`: batches of its lane class, so the fit's compiled
 program serves them. A refit counts where the remaining Gauss-Newton step at its result is
 below the fit's own `STEP_TOL`; the draws are offered to `bsfs predict` only where at least
@@ -126,6 +131,10 @@ def refit(result, n: int = REFITS, seed: int = 0, options: SolveOptions | None =
         if on_batch is not None:
             on_batch(lo + m, n)
     th = np.asarray(keep, float).reshape(-1, theta.size)
+    unc = getattr(result, "uncertainty", None)
+    if unc is not None and len(th):
+        f = np.asarray(unc.noise.get("line_widening", np.ones(theta.size)), float)
+        th = theta + (th - theta) * f  # correlated FRF lines (module docstring)
     values = np.asarray(problem.values(th)) if len(th) else th
     return Refits(tuple(problem.names), values, th, int(n), int(seed),
                   time.perf_counter() - t0)

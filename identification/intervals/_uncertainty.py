@@ -23,6 +23,10 @@ the covariance is I^-1, times s^2 where the residuals show model error (below).
   With fewer degrees of freedom that check cannot be made and the report says so. A
   record whose own noise estimate has too few degrees of freedom makes the uncertainty
   not estimable at all.
+- **Neighbouring FRF lines** whose errors are correlated (a Hann-windowed Welch FRF) carry
+  less information than independent lines; their covariance is the sandwich of
+  `_lines.py`, which widens each parameter's standard error by its own factor (>= 1) and
+  the report says so.
 - **Intervals** are 95 % and in file units: value exp(+-1.96 sigma) for log-parameters
   (always positive), value +- 1.96 sigma for offsets; where the linearisation is doubtful
   they are replaced by profile-likelihood intervals (`_profile.py`).
@@ -37,6 +41,7 @@ import numpy as np
 
 from ..fitting import NO_INFORMATION_STD, FitResult, informative
 from ..measurement import compliance_and_gradient, is_frf
+from ._lines import widening
 
 IDENTIFIABLE_STD = 0.1  # without priors: determined if std < 0.1 (10 % / 0.1 um)
 DETERMINED_RATIO = 0.5  # with priors: determined if posterior std <= 0.5 prior std
@@ -169,7 +174,14 @@ def uncertainty(result: FitResult) -> Uncertainty:
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
     info_inv = (v * inv_w[None, :]) @ v.T
     noise = _noise_check(pb, r_d, j_d, info_inv)
-    cov = noise["scaled_by"] * info_inv
+    factor, correlated = widening(pb, result.residual[:n_d], result.jacobian[:n_d], info_inv)
+    noise["line_widening"] = factor.tolist()
+    if correlated and noise["estimable"]:
+        rho = ", ".join(f"{r:.2f} in {name}" for name, r in correlated.items())
+        noise["text"] += (f"; neighbouring FRF lines' errors are correlated (lag-1 "
+                          f"correlation {rho}): the intervals are widened by up to "
+                          f"{float(factor.max()):.2f} x")
+    cov = noise["scaled_by"] * (factor[:, None] * info_inv * factor[None, :])
     scaled_std = np.sqrt(np.abs(np.diag(cov)))
     if np.any(null):  # parameters touched by a direction without information
         touched = np.any(np.abs(v[:, null]) > 1e-3, axis=1)
@@ -184,7 +196,7 @@ def uncertainty(result: FitResult) -> Uncertainty:
         hi = np.where(log, values * np.exp(Z95 * scaled_std), values + Z95 * scaled_std)
     ci = np.stack([lo, hi], 1)
     ci[~np.isfinite(scaled_std)] = np.nan
-    data_std = _data_only_std(j_d, noise["scaled_by"])
+    data_std = _data_only_std(j_d, noise["scaled_by"]) * factor
     if prior_sigma is not None:
         determined = data_std <= np.minimum(DETERMINED_RATIO * prior_sigma, IDENTIFIABLE_STD)
         share = np.clip(1.0 - (scaled_std / prior_sigma) ** 2, 0.0, 1.0)
