@@ -25,6 +25,7 @@ import numpy as np
 
 from .._files import ChunkCheckpoint, jsonable, open_netcdf, save_netcdf_atomic
 from ._atlas_grid import grid_problem
+from ._atlas_remote import failed_rows, notes_apart, rows_elsewhere, run_row, stack_rows
 from ._sweep import sweep
 from ._sweep_problem import SweepConfig
 from ._verify import UNRESOLVED, VERDICT_FIELDS, VerifySettings
@@ -295,14 +296,6 @@ def _check_bifurcations(found, y) -> list:
     return out
 
 
-def _run_row(problem, x, config, verify, folder, shard):
-    """Verdicts (dict of (Nx,) arrays) of one row by one cold verified sweep."""
-    res = sweep(problem, x, config=config, verify=verify, checkpoint_dir=folder,
-                progress=False, shard=shard)
-    verdicts = res.verdicts
-    return {k: np.asarray(v)[0] for k, v in verdicts.items() if k in VERDICT_FIELDS}
-
-
 def _run_grid(problems, x, config, verify, folder, shard, progress, prints, pending) -> dict:
     """{row: verdicts} of the rows `pending` (not yet checkpointed), by one sweep of all
     their points; empty where fewer than two rows are left or they cannot be stacked."""
@@ -322,7 +315,7 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
           config: SweepConfig = SweepConfig(), verify: VerifySettings = VerifySettings(),
           checkpoint_dir=None, progress: bool = True, shard=False, row_bifurcations=None,
           metadata: dict | None = None, x_label: str = "", y_label: str = "",
-          batch: str = "auto") -> Atlas:
+          batch: str = "auto", runner=None) -> Atlas:
     """Verified motion and amplitude over the grid `y_values` x `x_values`.
 
     **Main arguments:**
@@ -345,9 +338,20 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
       of all their points, `_atlas_grid.py`: one batch, sharded like any sweep; where the
       rows differ in more than their arrays, row by row), or "auto" (the default: "grid"
       where the sweep engine is the kernel, i.e. on a GPU, else "rows").
+    - `runner(fn, items)`: run the rows still to compute elsewhere, one chunk per row
+      (`_atlas_remote.py`; `bsfs_jax.cluster.Cluster.run` on a Dask cluster): the same
+      sweep per row as here, the rows saved here as they come back; a row whose chunk
+      failed is unresolved with the cause (`metadata["failed_rows"]`) and not saved.
+      `row_problem` and `row_bifurcations` must then be picklable (cloudpickle).
+
+    `row_bifurcations(y)` may also return `(points, notes)`: notes (strings) about the
+    row, kept with the row's checkpoint and gathered in `metadata["row_notes"]`.
     """
     if batch not in ("auto", "rows", "grid"):
         raise ValueError(f"batch must be 'auto', 'rows' or 'grid', got {batch!r}")
+    if runner is not None and (shard or batch == "grid"):
+        raise ValueError("runner= computes the rows elsewhere, one chunk per row: not with "
+                         "shard or batch='grid'")
     x = np.asarray(x_values, dtype=float)
     y = np.asarray(y_values, dtype=float)
     for name, v in (("x_values", x), ("y_values", y)):
@@ -364,39 +368,65 @@ def atlas(row_problem, x_values, y_values, *, y_name: str, y_unit: str = "",
     ckpt = ChunkCheckpoint(folder, whole, y.size, prefix="atlas_row")
     from tqdm.auto import tqdm
 
-    rows, bifs, computed = [], [], 0
+    rows, bifs, notes, computed = [], [], [], 0
     saved = [ckpt.load(j) for j in range(y.size)]  # finished rows (a resumed run)
     todo = [j for j in range(y.size) if not _row_done(saved[j], prints[j])]
+
+    def finish(j, verdicts, found):
+        """The row's checkpoint data (saved here, by this process alone)."""
+        found, said = notes_apart(found)
+        found = [] if row_bifurcations is None else _check_bifurcations(found, y[j])
+        data = {k: (v.astype(str) if v.dtype.kind in "USO" else v)
+                for k, v in verdicts.items()}
+        data.update(fingerprint=np.array(prints[j]), bifurcations=np.array(json.dumps(found)),
+                    notes=np.array(json.dumps(said)))
+        ckpt.save(j, data)
+        return data
+
+    failed = {}
+    if runner is not None and todo:
+        for j, data in rows_elsewhere(runner, row_problem, x, y, todo, config, verify,
+                                      row_bifurcations, finish, progress,
+                                      f"atlas {y_name}").items():
+            if isinstance(data, BaseException):
+                failed[j] = data
+            else:
+                saved[j], computed = data, computed + 1
+        todo = []
     with _rows_in_background(row_bifurcations, y, todo) as found_later:
         grid = {}
-        if batch == "grid" or (batch == "auto" and p0.resolved_engine(config) == "kernel"):
+        if todo and (batch == "grid" or (batch == "auto"
+                                         and p0.resolved_engine(config) == "kernel")):
             grid = _run_grid(problems, x, config, verify, folder, shard, progress, prints,
                              todo)
-        for j in tqdm(range(y.size), unit="row", disable=not progress or bool(grid),
-                      desc=f"atlas {y_name}"):
+        for j in tqdm(range(y.size), unit="row", disable=not progress or bool(grid)
+                      or runner is not None, desc=f"atlas {y_name}"):
+            if j in failed:
+                rows.append(None)
+                continue
             data = saved[j]
             if not _row_done(data, prints[j]):
                 computed += 1
                 sub = None if folder is None else folder / f"row_{j:04d}"
-                verdicts = grid[j] if j in grid else _run_row(problems[j], x, config,
+                verdicts = grid[j] if j in grid else run_row(problems[j], x, config,
                                                               verify, sub, shard)
-                found = [] if row_bifurcations is None else _check_bifurcations(
-                    found_later[j].result() if j in found_later else
-                    row_bifurcations(float(y[j])), y[j])
-                data = {k: (v.astype(str) if v.dtype.kind in "USO" else v)
-                        for k, v in verdicts.items()}
-                data.update(fingerprint=np.array(prints[j]),
-                            bifurcations=np.array(json.dumps(found)))
-                ckpt.save(j, data)
+                data = finish(j, verdicts, None if row_bifurcations is None else
+                              found_later[j].result() if j in found_later else
+                              row_bifurcations(float(y[j])))
             bifs += json.loads(str(data["bifurcations"]))
+            notes += json.loads(str(data["notes"])) if "notes" in data else []
             rows.append({k: v for k, v in data.items() if k not in ("fingerprint",
-                                                                     "bifurcations")})
-    verdicts = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
+                                                                     "bifurcations", "notes")})
+    verdicts = stack_rows(rows, failed, x.size)
     _, units = p0.labels()
     meta = {"created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "fingerprint": whole, "rows": int(y.size), "rows_computed_this_run": computed,
             "rows_batched_as_one_grid": len(grid),
             "vector_field": getattr(p0.vector_field, "__qualname__", "")}
+    if notes:
+        meta["row_notes"] = notes
+    if failed:
+        meta["failed_rows"] = failed_rows(failed, y)
     meta.update(metadata or {})
     return Atlas(x_name=p0.param, x_unit=p0.unit, y_name=y_name, y_unit=y_unit, x=x, y=y,
                  verdicts=verdicts, bifurcations=bifs, x_label=x_label, y_label=y_label,

@@ -25,10 +25,13 @@ num_processes=..., process_id=...)` (or its automatic cluster detection) *before
 other JAX call; `jax.devices()` then lists every process's devices, the mesh spans them
 all, the chunk outputs are gathered to every process (`process_allgather`) and only
 process 0 writes checkpoints. (Tested on one host with
-`XLA_FLAGS=--xla_force_host_platform_device_count=2`; not tested across hosts.)
+`XLA_FLAGS=--xla_force_host_platform_device_count=2`; not tested across hosts.) For many
+hosts, the independent chunks of a cold sweep go to a task scheduler instead (`runner=`,
+`bsfs_jax.cluster`): no lockstep, and a lost process costs only its chunk.
 """
 
 import datetime
+import functools
 import hashlib
 import json
 import re
@@ -39,7 +42,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._files import ChunkCheckpoint, jsonable
-from ..solvers import result_from_codes
+from ..solvers import RESULTS, result_codes, result_from_codes
+from ._remote import failure, lost_chunk, run_elsewhere
 from ._sweep_engines import (
     SettleRuns,
     _cold_chunk,
@@ -134,7 +138,7 @@ def _split_by_cost(order, cost, segments: int):
 def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str = "up",
           config: SweepConfig = SweepConfig(), y0=None, transient=None, checkpoint_dir=None,
           progress: bool = True, shard=False, segments: int = 1,
-          metadata: dict | None = None, verify=None) -> SweepResult:
+          metadata: dict | None = None, verify=None, runner=None) -> SweepResult:
     """Sweep `problem.param` over `values`, recording the steady response at each point.
 
     **Main arguments:**
@@ -169,6 +173,14 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
       jumps to the orbit, and points without one are continued until they stop drifting.
       The verdicts are saved in the checkpoint folder chunk by chunk (a rerun verifies
       only the chunks not yet done).
+    - `runner(fn, items)` (cold mode, not sharded): compute the chunks not yet
+      checkpointed elsewhere, e.g. on a Dask cluster (`bsfs_jax.cluster.Cluster.run`;
+      `_remote.py`): each chunk, and each chunk of the verification, is one item, computed
+      by the same function as here; this process saves them in the same checkpoint, so the
+      answers and the files are the local run's. A chunk that failed on every attempt
+      leaves its points NaN with the result `chunk_lost` (the verdict "failed", the cause
+      in the reason) and is listed in `metadata["failed_chunks"]`; a rerun computes it.
+      `problem` must then be picklable (cloudpickle).
 
     **Returns:** a `SweepResult`. Failed points (a `result` other than
     `RESULTS.successful`) hold NaN; they never stop the sweep.
@@ -177,7 +189,8 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
         return _verified_sweep(problem, values, mode=mode, direction=direction,
                                config=config, y0=y0, transient=transient,
                                checkpoint_dir=checkpoint_dir, progress=progress, shard=shard,
-                               segments=segments, metadata=metadata, verify=verify)
+                               segments=segments, metadata=metadata, verify=verify,
+                               runner=runner)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if direction not in DIRECTIONS:
@@ -190,6 +203,10 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
         raise ValueError(f"values must be finite; got {bad} for {problem.param}")
     if int(segments) < 1:
         raise ValueError(f"segments must be >= 1, got {segments}")
+    if runner is not None and (mode != "cold" or shard):
+        raise ValueError("runner= computes the independent chunks of a cold sweep elsewhere; "
+                         "a continued sweep (each point starts from the last) and a sharded "
+                         "one (the devices of this process) run here")
     n, n_states = vals.size, problem.n_states
     problem, y0s = _start_states(problem, y0, n, mode)
     n_tr = _transients(transient, n, mode, config)
@@ -230,6 +247,12 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
 
     bar = tqdm(total=n * len(directions), unit="pt", disable=not progress,
                desc=f"sweep {problem.param}")
+    spec = (problem, vals, y0s, n_tr, config, lane_idx[0], chunk, length, mesh)
+    remote, failed = {}, []
+    if runner is not None:
+        todo = {k: k for k in range(n_chunks) if ckpt.load(k) is None}
+        remote = run_elsewhere(runner, functools.partial(_cold_part, spec), todo, ckpt.save,
+                               bar, {k: min(chunk, length - k * chunk) for k in todo})
     parts = []
     y_carry = np.broadcast_to(np.asarray(problem.y0), (L, n_states)).copy()
     ok_carry = np.ones(L, dtype=bool)
@@ -239,26 +262,25 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
         for k in range(n_chunks):
             lo, hi = k * chunk, min((k + 1) * chunk, length)
             real = hi - lo
+            if k in remote:
+                data = remote[k]
+                if isinstance(data, BaseException):
+                    failed.append(failure("integration", k, vals[lo:hi], data))
+                    data = None
+                recomputed += 1
+                parts.append(data)
+                continue  # (its points were counted as it came back)
             data = ckpt.load(k)
             if data is None:
                 recomputed += 1
-                pos = np.concatenate([np.arange(lo, hi), np.full(chunk - real, hi - 1)])
-                idx = lane_idx[:, pos]
                 if mode == "cold":
-                    tr = None if n_tr is None else jnp.asarray(n_tr[idx[0]], dtype=float)
-                    out = _cold_chunk(problem, jnp.asarray(vals[idx[0]]),
-                                      jnp.asarray(y0s[idx[0]]), tr, config, mesh)
-                    if mesh is not None and jax.process_count() > 1:
-                        from jax.experimental import multihost_utils
-
-                        out = multihost_utils.process_allgather(out, tiled=True)
-                    out = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], out)
+                    data = _cold_part(spec, k)
                 else:
+                    pos = np.concatenate([np.arange(lo, hi), np.full(chunk - real, hi - 1)])
                     _, out = _continued_chunk(
-                        problem, jnp.asarray(vals[idx]), jnp.asarray(y_carry),
+                        problem, jnp.asarray(vals[lane_idx[:, pos]]), jnp.asarray(y_carry),
                         jnp.asarray(ok_carry), jnp.asarray(first), config)
-                    out = jax.tree_util.tree_map(np.asarray, out)
-                data = {name: a[:, :real] for name, a in out.items()}
+                    data = {name: np.asarray(a)[:, :real] for name, a in out.items()}
                 ckpt.save(k, data)
             if mode == "continued":
                 y_carry = data["end_state"][:, real - 1].copy()
@@ -269,6 +291,14 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
             bar.update(done)
     finally:
         bar.close()
+    if failed:
+        done = [p for p in parts if p is not None]
+        if not done:
+            raise RuntimeError(f"every chunk of the sweep failed; the first: "
+                               f"{failed[0]['cause']}")
+        code = int(np.asarray(result_codes(RESULTS.chunk_lost)))
+        parts = [lost_chunk(done[0], min(chunk, length - k * chunk), code) if p is None
+                 else p for k, p in enumerate(parts)]
 
     merged = {name: np.concatenate([p[name] for p in parts], axis=1) for name in parts[0]}
     # Scatter the lanes back onto (direction, value index).
@@ -295,6 +325,8 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
     }
     if n_tr is not None:
         meta["transient_periods_per_point"] = n_tr.tolist()
+    if failed:
+        meta["failed_chunks"] = failed
     meta.update(metadata or {})
     return SweepResult(
         param=problem.param, unit=problem.unit, values=vals, directions=directions,
@@ -305,8 +337,24 @@ def sweep(problem: SweepProblem, values, *, mode: str = "cold", direction: str =
         **{name: out_arrays[name] for name in _RESULT_FIELDS})
 
 
+def _cold_part(spec, k: int) -> dict:
+    """The arrays (1, points, ...) of chunk `k` of a cold sweep: run here, or elsewhere by
+    a `runner` (the same function, so the same numbers)."""
+    problem, vals, y0s, n_tr, config, order, chunk, length, mesh = spec
+    lo, hi = k * chunk, min((k + 1) * chunk, length)
+    pos = np.concatenate([np.arange(lo, hi), np.full(chunk - (hi - lo), hi - 1)])
+    idx = order[pos]
+    tr = None if n_tr is None else jnp.asarray(n_tr[idx], dtype=float)
+    out = _cold_chunk(problem, jnp.asarray(vals[idx]), jnp.asarray(y0s[idx]), tr, config, mesh)
+    if mesh is not None and jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        out = multihost_utils.process_allgather(out, tiled=True)
+    return {name: np.asarray(a)[None][:, :hi - lo] for name, a in out.items()}
+
+
 def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
-                    checkpoint_dir, progress, shard, segments, metadata, verify):
+                    checkpoint_dir, progress, shard, segments, metadata, verify, runner):
     """`sweep` followed by `verify_sweep`, with the per-point minimum transient."""
     from pathlib import Path
 
@@ -334,11 +382,12 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
     chunk = max(int(config.chunk_size), 16)
     # (the points `verify_sweep` will see: every value once per direction)
     n_keys = max(vals.size, 1) * (2 if mode != "cold" and direction == "both" else 1)
-    OrbitTrials(problem, verify, problem.observe,
-                lanes=verify.lanes_for(min(chunk, n_keys)), kernel=kernel).prefetch()
+    if runner is None:  # (elsewhere, the workers compile them)
+        OrbitTrials(problem, verify, problem.observe,
+                    lanes=verify.lanes_for(min(chunk, n_keys)), kernel=kernel).prefetch()
     res = sweep(problem, values, mode=mode, direction=direction, config=config, y0=y0,
                 transient=transient, checkpoint_dir=checkpoint_dir, progress=progress,
-                shard=shard, segments=segments, metadata=metadata)
+                shard=shard, segments=segments, metadata=metadata, runner=runner)
     n = res.values.size
     if mode == "cold":
         n_tr = np.full(n, config.transient_periods) if transient is None else \
@@ -350,10 +399,14 @@ def _verified_sweep(problem, values, *, mode, direction, config, y0, transient,
         mesh = _make_mesh(shard, n)
         settle = SettleRuns(problem, config, mesh, cold_chunk_size(config, n, mesh),
                             verify.block_periods)
+    failed = res.metadata.get("failed_chunks", [])
     stored = verify_sweep(problem, res, settings=verify, transient=n_tr, progress=progress,
                           checkpoint_dir=None if checkpoint_dir is None else
                           Path(checkpoint_dir) / "verdicts",
-                          chunk=chunk, settle=settle, kernel=kernel)
+                          chunk=chunk, settle=settle, kernel=kernel, runner=runner,
+                          failures=failed)
+    if failed:
+        res.metadata["failed_chunks"] = failed
     res.verdicts = stored
     res.metadata["verify_settings"] = jsonable(verify.to_dict())
     return res

@@ -25,6 +25,8 @@ verdict or the budget (`budget_time_constants` / slowest linear decay rate).
 """
 
 import dataclasses
+import functools
+import hashlib
 import json
 from pathlib import Path
 
@@ -343,7 +345,8 @@ def verify_points(problem, values, strobes, amplitudes, periods, transients, *,
 
 def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings(),
                  transient=None, progress: bool = False, checkpoint_dir=None,
-                 chunk: int = 64, settle=None, kernel: dict | None = None) -> dict:
+                 chunk: int = 64, settle=None, kernel: dict | None = None, runner=None,
+                 failures: list | None = None) -> dict:
     """Verdicts (dict of (D, N) arrays, `VERDICT_FIELDS`, and the (D, N, max_period)
     `orbit_strobe`) for every point of a sweep.
 
@@ -351,7 +354,9 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
     `settle`, `kernel`: the settle blocks' runner and the kernel checks (`verify_points`).
     With `checkpoint_dir`, the verdicts of each `chunk` of points are saved there as they
     are found (tagged with the settings and the sweep's fingerprint), so an interrupted
-    verification resumes with the chunks not yet done.
+    verification resumes with the chunks not yet done. `runner`: verify the chunks not
+    yet saved elsewhere (`sweep`'s `runner`); a chunk that failed on every attempt leaves
+    its points unresolved with the cause, recorded in `failures` (a list) when given.
     """
     D, N = result.strobe.shape[:2]
     out = _empty((D, N), settings.max_period)
@@ -370,38 +375,73 @@ def verify_sweep(problem, result, *, settings: VerifySettings = VerifySettings()
     # checks as given), so verdicts of another resolution are not reused.
     resolved = dict(settings.to_dict(), wide=settings.is_wide(), settle=settle is not None,
                     kernel_checks=kernel is not None)
+    # (the points verified, too: a rerun after a lost chunk of the sweep has more of them)
     tag = json.dumps([jsonable(resolved), result.metadata.get("fingerprint"),
-                      np.asarray(n_tr).tolist()], sort_keys=True)
+                      np.asarray(n_tr).tolist(), hashlib.sha256(
+                          np.asarray(keys, dtype=np.int64).tobytes()).hexdigest()[:16]],
+                     sort_keys=True)
     folder = None if checkpoint_dir is None else Path(checkpoint_dir)
     from tqdm.auto import tqdm
 
     bar = tqdm(total=len(keys), unit="pt", disable=not progress or not keys, desc="verify")
     lanes = settings.lanes_for(min(int(chunk), len(keys)))
-    for c, lo in enumerate(range(0, len(keys), int(chunk))):
-        part = keys[lo:lo + int(chunk)]
-        path = None if folder is None else folder / f"verdicts_{c:05d}.npz"
-        got = _load_chunk(path, tag)
+    parts = [keys[lo:lo + int(chunk)] for lo in range(0, len(keys), int(chunk))]
+    paths = [None if folder is None else folder / f"verdicts_{c:05d}.npz"
+             for c in range(len(parts))]
+
+    def inputs(part):
+        return (np.array([result.values[i] for _, i in part]),
+                np.array([result.strobe[d, i] for d, i in part]),
+                np.array([result.amplitude[d, i] for d, i in part]),
+                np.array([result.period[i] for _, i in part]),
+                np.array([(n_tr[i] + P) * result.period[i] for _, i in part]))
+
+    def save(c, got):
+        if paths[c] is not None and jax.process_index() == 0:
+            save_npz_atomic(paths[c], tag=np.array(tag), **{f"v_{k}": a for k, a in got.items()})
+
+    spec = (problem, settings, lanes, settle, kernel)
+    found = {c: _load_chunk(paths[c], tag) for c in range(len(parts))}
+    todo = {}
+    if runner is not None:  # (the bar advances as they come back)
+        from ._remote import run_elsewhere
+
+        todo = {c: inputs(parts[c]) for c in found if found[c] is None}
+        found.update(run_elsewhere(runner, functools.partial(_verify_part, spec), todo, save,
+                                   bar, {c: len(parts[c]) for c in todo}))
+    for c, part in enumerate(parts):
+        got = found[c]
+        if isinstance(got, BaseException):
+            from ._remote import cause_of, failure
+
+            if failures is not None:
+                failures.append(failure("verification", c, inputs(part)[0], got))
+            for d, i in part:
+                out["reason"][d, i] = f"not verified: its chunk failed ({cause_of(got)})"
+            continue
         if got is None:
-            vals = np.array([result.values[i] for _, i in part])
-            per = np.array([result.period[i] for _, i in part])
-            got = verify_points(
-                problem, vals, np.array([result.strobe[d, i] for d, i in part]),
-                np.array([result.amplitude[d, i] for d, i in part]), per,
-                np.array([(n_tr[i] + P) * result.period[i] for _, i in part]),
-                settings=settings, lanes=lanes, settle=settle, kernel=kernel)
-            got = {f: np.asarray(a).astype(str) if f in ("motion", "reason") else
-                   np.asarray(a) for f, a in got.items()}
-            if path is not None and jax.process_index() == 0:
-                save_npz_atomic(path, tag=np.array(tag), **{f"v_{k}": a for k, a in got.items()})
+            got = _verify_part(spec, inputs(part))
+            save(c, got)
+        if c not in todo:
+            bar.update(len(part))
         for j, (d, i) in enumerate(part):
             for f in (*VERDICT_FIELDS, ORBIT_STROBE):
                 if f in got:  # (chunks saved before orbit_strobe existed lack it)
                     out[f][d, i] = got[f][j]
-        bar.update(len(part))
     bar.close()
     out["motion"] = out["motion"].astype(str)
     out["reason"] = out["reason"].astype(str)
     return out
+
+
+def _verify_part(spec, inputs) -> dict:
+    """The verdicts of one chunk of points (`verify_sweep`), as saved: here, or elsewhere
+    by a `runner` (the same function, so the same verdicts)."""
+    problem, settings, lanes, settle, kernel = spec
+    got = verify_points(problem, *inputs, settings=settings, lanes=lanes, settle=settle,
+                        kernel=kernel)
+    return {f: np.asarray(a).astype(str) if f in ("motion", "reason") else np.asarray(a)
+            for f, a in got.items()}
 
 
 def _load_chunk(path, tag):

@@ -4,6 +4,7 @@ import argparse
 
 import numpy as np
 
+from . import _cluster_opts
 from . import _common as ui
 
 #: Most points of one sweep, and most samples (points x periods x samples per period).
@@ -73,6 +74,7 @@ def register(sub) -> None:
     ui.add_engine_args(p)
     p.add_argument("--shard", action="store_true",
                    help="shard cold-mode chunks over all JAX devices")
+    _cluster_opts.add_args(p)
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
@@ -131,21 +133,35 @@ def run(args) -> int:
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)
-    try:
-        result = sweep(problem, values, mode=args.mode, direction=args.direction,
-                       config=config, transient=fixed if verify is not None else None,
-                       checkpoint_dir=folder / "checkpoint", progress=ui.progress_enabled(args),
-                       shard=args.shard, verify=verify,
-                       metadata={"parameters": source, "overrides": list(args.set),
-                                 "frequency_hz": args.frequency, "force_n": args.force})
-    except ValueError as exc:  # e.g. the --out folder holds a different sweep
-        raise ui.CLIError(str(exc)) from None
+    if _cluster_opts.wanted(args) and (args.mode != "cold" or args.shard):
+        raise ui.CLIError("--scheduler/--workers run the independent chunks of a cold sweep: "
+                          "drop them for --mode continued (each point starts from the last) "
+                          "or drop --shard (the devices of this one process)")
+    with _cluster_opts.cluster_from_args(args, "sweep") as cluster:
+        try:
+            result = sweep(problem, values, mode=args.mode, direction=args.direction,
+                           config=config, transient=fixed if verify is not None else None,
+                           checkpoint_dir=folder / "checkpoint",
+                           progress=ui.progress_enabled(args), shard=args.shard,
+                           verify=verify, runner=None if cluster is None else cluster.run,
+                           metadata={"parameters": source, "overrides": list(args.set),
+                                     "frequency_hz": args.frequency, "force_n": args.force})
+        except ValueError as exc:  # e.g. the --out folder holds a different sweep
+            raise ui.CLIError(str(exc)) from None
+        except RuntimeError as exc:  # every chunk failed on the cluster
+            if cluster is None:
+                raise
+            raise ui.CLIError(str(exc).splitlines()[0]) from None
+        on_cluster = _cluster_opts.report(cluster, "sweep",
+                                          result.metadata.get("failed_chunks", []))
     jumps = result.jumps()
     if args.mode == "continued" and not args.no_folds:
         real = [j for j in jumps if j.hysteresis is not False]
         locate_jump_folds(problem, result, real)
     result.save(folder / "sweep.nc")
     summary = result.summary(jumps=jumps)
+    if on_cluster is not None:
+        summary["cluster"] = on_cluster
     ui.write_json(folder / "summary.json", summary)
     force = f"{args.force:g} N" if args.param != "force_n" else "swept force"
     where = f", {args.frequency:g} Hz" if args.param != "frequency_hz" else ""

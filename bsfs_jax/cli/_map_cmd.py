@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from . import _cluster_opts
 from . import _common as ui
 
 FREQUENCY, FORCE, DAMPING_SCALE = "frequency_hz", "force_n", "damping_scale"
@@ -83,6 +84,7 @@ def register(sub) -> None:
                    help="points integrated in lockstep (0: the whole chunk)")
     ui.add_engine_args(p)
     p.add_argument("--shard", action="store_true", help="shard rows over all JAX devices")
+    _cluster_opts.add_args(p)
     p.add_argument("--batch-atlas", choices=("auto", "rows", "grid"), default="auto",
                    help="'grid': every point of the atlas in one sweep (one batch, sharded "
                    "with --shard); 'rows': one sweep per row; 'auto' (default): grid with "
@@ -225,7 +227,6 @@ def run(args) -> int:
         forces=[*(x if args.x == FORCE else []), *(ys if args.y == FORCE else []), args.force],
         frequencies=[*(x if args.x == FREQUENCY else []), *(ys if args.y == FREQUENCY else []),
                      args.frequency])
-    notes = []
     pending = None
     # The rows' shooting by the fused 8(7) loop: its program compiles ~7 s longer than
     # diffrax's, but each of a row's ~200 corrector calls takes half the time. Only the
@@ -242,6 +243,7 @@ def run(args) -> int:
         from ._continue_cmd import continue_by_method
 
         p, _, force = row(y)
+        mine = []  # notes on this row (returned: the row may run on a cluster worker)
         try:
             lo, hi = (x[0], x[-1]) if args.band is None else args.band
             family = bsfs_family(p, force)
@@ -283,20 +285,20 @@ def run(args) -> int:
             if branch is None:
                 branch, why = from_guess(transient())
             for w in why:
-                notes.append(f"{args.y} = {y:g}: {w}")
+                mine.append(f"{args.y} = {y:g}: {w}")
         except Exception as exc:  # noqa: BLE001 - a row without curves is reported
-            notes.append(f"{args.y} = {y:g}: continuation failed ({exc})")
-            print(f"bsfs map: warning: {notes[-1]}", flush=True)
-            return []
+            mine.append(f"{args.y} = {y:g}: continuation failed ({exc})")
+            print(f"bsfs map: warning: {mine[-1]}", flush=True)
+            return [], mine
         reached = float(np.max(branch.p)) if hi > lo else float(np.min(branch.p))
         if abs(reached - hi) > 1e-6 * abs(hi - lo):
-            notes.append(f"{args.y} = {y:g}: continuation stopped at {reached:.6g} Hz "
-                         f"({branch.info.get('stop_reason')}); bifurcations beyond it are "
-                         "not shown (raise --max-points or --ds, or narrow --band)")
-            print(f"bsfs map: warning: {notes[-1]}", flush=True)
+            mine.append(f"{args.y} = {y:g}: continuation stopped at {reached:.6g} Hz "
+                        f"({branch.info.get('stop_reason')}); bifurcations beyond it are "
+                        "not shown (raise --max-points or --ds, or narrow --band)")
+            print(f"bsfs map: warning: {mine[-1]}", flush=True)
         return [{"x": b.p, "kind": b.kind, "amplitude": b.amplitude, "located": b.located,
                  "multiplier_moduli": np.abs(b.multipliers).tolist()}
-                for b in branch.bifurcations]
+                for b in branch.bifurcations], mine
 
     bifs = None if args.no_bifurcations or args.x != FREQUENCY or args.x_num < 2 else \
         row_bifurcations
@@ -319,8 +321,11 @@ def run(args) -> int:
                             block_periods=args.block_periods,
                             align_periods=min(16, args.block_periods // 4),
                             kernel_checks=args.kernel_checks)
+    if _cluster_opts.wanted(args) and (args.shard or args.batch_atlas == "grid"):
+        raise ui.CLIError("--scheduler/--workers run one row per chunk: drop --shard (the "
+                          "devices of this one process) or --batch-atlas grid")
     folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
-    if bifs is not None and args.method == "shooting":
+    if bifs is not None and args.method == "shooting" and not _cluster_opts.wanted(args):
         # The rows' corrector is the longest compilation of a cold map (traced ~4 s,
         # compiled 7-14 s): start it first, on the background thread, from the first
         # row's family (its layout needs only the state's size, six).
@@ -333,21 +338,32 @@ def run(args) -> int:
             family0, family0.vector_field, shooting, np.zeros(6),
             x[0] if args.band is None else args.band[0], amplitude_index=2,
             amplitudes="events")
-    try:
-        result = atlas(
-            row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,
-            verify=verify, checkpoint_dir=folder / "checkpoint",
-            progress=ui.progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
-            batch=args.batch_atlas,
-            x_label=_words(args.x), y_label=_words(args.y),
-            metadata={"parameters": source, "overrides": list(args.set), **{
-                k: v for k, v in ((FREQUENCY, args.frequency), (FORCE, args.force))
-                if k not in (args.x, args.y)}})
-    except ValueError as exc:
-        raise ui.CLIError(str(exc).splitlines()[0]) from None
+    with _cluster_opts.cluster_from_args(args, "map") as cluster:
+        try:
+            result = atlas(
+                row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,
+                verify=verify, checkpoint_dir=folder / "checkpoint",
+                progress=ui.progress_enabled(args), shard=args.shard, row_bifurcations=bifs,
+                batch=args.batch_atlas, runner=None if cluster is None else cluster.run,
+                x_label=_words(args.x), y_label=_words(args.y),
+                metadata={"parameters": source, "overrides": list(args.set), **{
+                    k: v for k, v in ((FREQUENCY, args.frequency), (FORCE, args.force))
+                    if k not in (args.x, args.y)}})
+        except ValueError as exc:
+            raise ui.CLIError(str(exc).splitlines()[0]) from None
+        except RuntimeError as exc:  # every row's chunk failed on the cluster
+            if cluster is None:
+                raise
+            raise ui.CLIError(str(exc).splitlines()[0]) from None
+        on_cluster = _cluster_opts.report(cluster, "map", result.metadata.get("failed_rows", []))
+    notes = result.metadata.pop("row_notes", [])
+    for note in notes if cluster is not None else []:  # (printed on the workers)
+        print(f"bsfs map: warning: {note}", flush=True)
     result.save(folder / "atlas.nc")
     summary = result.summary()
     summary["notes"] = notes
+    if on_cluster is not None:
+        summary["cluster"] = on_cluster
     ui.write_json(folder / "summary.json", summary)
     fixed = ", ".join(s for s in (
         f"{args.frequency:g} Hz" if FREQUENCY not in (args.x, args.y) else "",

@@ -32,6 +32,8 @@ class RESULTS(dfx.RESULTS):  # type: ignore[misc]
                               "tolerance with the largest allowed harmonic count; raise "
                               "max_harmonics or use the shooting method")
     invalid_input = "the inputs are not finite or not consistent"
+    chunk_lost = ("not computed: the point's chunk failed on every attempt on the cluster "
+                  "(the cause is in the result's metadata, failed_chunks); rerun to compute it")
 
 
 def result_message(result) -> str:

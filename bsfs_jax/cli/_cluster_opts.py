@@ -1,0 +1,80 @@
+"""--scheduler / --workers for the commands whose work splits into independent chunks
+(`bsfs map`: its rows; `bsfs sweep`: its chunks): the chunks then run on a Dask cluster
+(`bsfs_jax.cluster`), and this process alone writes the output folder. Without either
+option (and without BSFS_SCHEDULER) nothing changes."""
+
+import argparse
+import os
+from contextlib import contextmanager
+
+from . import _common as ui
+
+ENV = "BSFS_SCHEDULER"  # (bsfs_jax.cluster.ENV, without importing it for --help)
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if not 1 <= value <= 4096:
+        raise argparse.ArgumentTypeError(f"a number of workers from 1 to 4096, got '{text}'")
+    return value
+
+
+def add_args(parser) -> None:
+    """--scheduler ADDRESS | --workers N (mutually exclusive)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run the independent chunks on the Dask cluster whose scheduler "
+                       f"is at ADDRESS (e.g. tcp://login1:8786; default ${ENV}); only this "
+                       "process writes --out (pip install 'bsfs[cluster]')")
+    group.add_argument("--workers", type=_workers, metavar="N",
+                       help="start a local Dask cluster of N worker processes (one thread "
+                       "each) and run the independent chunks on it")
+
+
+def wanted(args) -> bool:
+    """Whether the command line (or BSFS_SCHEDULER) asks for a cluster."""
+    return bool(getattr(args, "scheduler", None) or getattr(args, "workers", None)
+                or os.environ.get(ENV))
+
+
+@contextmanager
+def cluster_from_args(args, command: str):
+    """The `Cluster` named by --scheduler / --workers / BSFS_SCHEDULER, or None (the work
+    runs in this process as before); closed on leaving."""
+    if not wanted(args):
+        yield None
+        return
+    from ..cluster import open_cluster
+
+    try:
+        cluster = open_cluster(getattr(args, "scheduler", None), getattr(args, "workers", None))
+    except (RuntimeError, ValueError, OSError) as exc:
+        raise ui.CLIError(str(exc).splitlines()[0]) from None
+    print(f"bsfs {command}: independent chunks on {cluster.describe()}", flush=True)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+def report(cluster, command: str, failed: list) -> dict | None:
+    """The cluster's part of summary.json (None without a cluster): where the chunks ran,
+    their seconds, the programs they compiled, and `failed` (the result's failed chunks or
+    rows, `metadata["failed_chunks"]` / `["failed_rows"]`), each also printed as a
+    warning with its cause."""
+    if cluster is None:
+        return None
+    from ..cluster import summary
+
+    out = summary(cluster)
+    out["failed_chunks"] = failed
+    for f in failed:
+        lo, hi = f["values"]
+        where = f"{lo:g}" if lo == hi else f"{lo:g} .. {hi:g}"
+        print(f"bsfs {command}: warning: the {f['stage']} chunk at {where} failed "
+              f"{f['attempts']} times ({f['cause']}); its points are marked; rerun the same "
+              "command with the same --out to compute them", flush=True)
+    return out
