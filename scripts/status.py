@@ -305,6 +305,29 @@ def _cold(src: Sources, v: Values):
         v.put(f"res.{name}_warm", lambda n=name: sig(rset(n)["warm"]["wall_s"], 2), r)
 
 
+def _cluster(src: Sources, v: Values):
+    """K1 (benchmarks/results/cluster.json): atlases on a local Dask cluster."""
+    f = "benchmarks/results/cluster.json"
+    d = src.json(f)
+    put = lambda name, fn: v.put(f"cl.{name}", fn, f)  # noqa: E731
+
+    def widest():
+        grids = d["grids"].raw()
+        return max(grids, key=lambda g: int(g.split("x")[0]) * int(g.split("x")[1]))
+
+    def minutes(s):
+        return f"{sig(s / 60, 2)} min" if s >= 120 else f"{sig(s, 3)} s"
+
+    put("date", lambda: date10(d["machine"]["date_utc"]))
+    put("grid", lambda: widest().replace("x", " x "))
+    put("plain", lambda: minutes(d["grids"][widest()]["plain"]["wall_s"]))
+    put("two", lambda: minutes(d["grids"][widest()]["2 workers"]["wall_s"]))
+    put("speedup", lambda: f"{float(d['grids'][widest()]['2 workers']['speed_up']):.2f}")
+    put("task_ms", lambda: sig(1e3 * d["scheduler"]["per_task_s"], 2))
+    put("est8", lambda: minutes(d["estimate"]["8_workers_s"]))
+    put("est64", lambda: minutes(d["estimate"]["64_workers_s"]))
+
+
 def _orbits(src: Sources, v: Values, targets: dict):
     f = "benchmarks/results/orbits.json"
     d = src.json(f)
@@ -442,6 +465,7 @@ def collect(src: Sources, templates: dict) -> Values:
     _b1(src, v)
     _gpu(src, v, targets)
     _cold(src, v)
+    _cluster(src, v)
     _orbits(src, v, targets)
     _identify(src, v)
     _reproduction(src, v)

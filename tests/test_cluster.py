@@ -10,6 +10,8 @@ import functools
 import json
 import os
 import signal
+import subprocess
+import sys
 
 import jax.numpy as jnp
 import numpy as np
@@ -157,6 +159,18 @@ def test_the_cache_folder_is_keyed_by_the_cpu_and_bad_options_are_refused(tmp_pa
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.timeout(120)
+def test_dask_is_imported_only_when_a_cluster_opens():
+    code = ("import sys, bsfs_jax.cluster, bsfs_jax.analysis; from bsfs_jax.cli import "
+            "build_parser; build_parser().parse_args(['map', '--workers', '2', '--x-start', "
+            "'1', '--x-stop', '2', '--x-num', '2', '--y-start', '1', '--y-stop', '2', "
+            "'--y-num', '2', '--out', 'x']); print(sorted(m for m in ('dask', 'distributed') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=100, cwd=os.path.dirname(os.path.dirname(__file__)))
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr[-2000:]
+
+
 @pytest.mark.timeout(240)
 def test_an_atlas_on_two_workers_gives_the_local_answers_and_files(cluster, local, tmp_path):
     before = len(cluster.records)
@@ -198,11 +212,18 @@ def test_a_sweep_s_chunks_on_two_workers_give_the_local_answers_and_checkpoints(
     assert_same_sweep(here, again)
 
 
-@pytest.mark.timeout(60)
-def test_a_worker_s_second_chunk_compiles_nothing(cluster):
+@pytest.mark.timeout(240)
+def test_a_worker_s_second_chunk_compiles_nothing(cluster, tmp_path):
     """Every chunk after a worker's first of its kind (the same layout, other values)
     neither compiles a program nor reads one from the persistent cache: an atlas's rows
-    and a sweep's integration chunks (the earlier tests ran them on this cluster)."""
+    and a sweep's integration chunks (run by the earlier tests, else here)."""
+    def kinds():
+        return {r["kind"] for r in cluster.records if r["chunk_of_worker"] > 1}
+
+    if "_row_task" not in kinds():
+        _atlas(row_problem, tmp_path / "atlas", cluster.run)
+    if "_cold_part" not in kinds():
+        _sweep(tmp_path / "sweep", cluster.run)
     later = [r for r in cluster.records if r["chunk_of_worker"] > 1
              and r["kind"] in ("_row_task", "_cold_part")]
     assert {r["kind"] for r in later} == {"_row_task", "_cold_part"}, cluster.records
@@ -296,3 +317,26 @@ def test_bsfs_map_and_sweep_on_the_cluster_write_the_local_files(cluster, tmp_pa
     a, b = load_sweep(tmp_path / "s0" / "sweep.nc"), load_sweep(tmp_path / "s1" / "sweep.nc")
     assert_same_sweep(a, b)
     assert _files(tmp_path / "s0") == _files(tmp_path / "s1")
+
+
+@pytest.mark.timeout(420)
+def test_bsfs_map_s_bifurcation_points_on_the_cluster_are_the_local_ones(cluster, tmp_path):
+    """Each row's continuation runs on the worker beside its sweep: the folds of the
+    100 N resonance (two rows) come back as the local run finds them."""
+    from bsfs_jax.analysis import load_atlas
+
+    mapped = ["map", "--x", "frequency_hz", "--x-start", "1000", "--x-stop", "1250",
+              "--x-num", "3", "--y", "force_n", "--y-start", "90", "--y-stop", "100",
+              "--y-num", "2", "--max-blocks", "1", "--block-periods", "64", "--transient",
+              "40", "--periods", "8", "--samples-per-period", "16"]
+    here, there = _cli(mapped, tmp_path / "m0"), _cli(mapped, tmp_path / "m1", cluster)
+    assert there["cluster"]["chunks_done"] == 2 and not there["cluster"]["failed_chunks"]
+    a, b = load_atlas(tmp_path / "m0" / "atlas.nc"), load_atlas(tmp_path / "m1" / "atlas.nc")
+    assert_same_verdicts(a, b)
+    assert any(p["kind"] == "fold" for p in a.bifurcations), a.bifurcations
+    assert len(b.bifurcations) == len(a.bifurcations)
+    for p, q in zip(a.bifurcations, b.bifurcations, strict=True):
+        assert p["kind"] == q["kind"] and p["y"] == q["y"]
+        np.testing.assert_allclose([q["x"], q["amplitude"]], [p["x"], p["amplitude"]],
+                                   rtol=0, atol=1e-12)
+    assert here["notes"] == there["notes"]

@@ -30,10 +30,16 @@ def run_row(problem, x, config, verify, folder, shard):
 
 def _row_task(spec, y: float):
     """(verdicts of the row at y, what `row_bifurcations(y)` returns, or None): runs on a
-    worker, the row's sweep by the local run's own function (`run_row`)."""
+    worker, the row's sweep by the local run's own function (`run_row`), and beside it on
+    a thread, as the local run does, `row_bifurcations(y)` (host-driven continuation: the
+    interpreter is free while XLA computes the sweep)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     row_problem, x, config, verify, row_bifurcations = spec
-    verdicts = run_row(row_problem(y), x, config, verify, None, False)
-    return verdicts, None if row_bifurcations is None else row_bifurcations(y)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="bsfs-row") as pool:
+        found = None if row_bifurcations is None else pool.submit(row_bifurcations, y)
+        verdicts = run_row(row_problem(y), x, config, verify, None, False)
+        return verdicts, None if found is None else found.result()
 
 
 def rows_elsewhere(runner, row_problem, x, y, rows, config, verify, row_bifurcations,

@@ -133,11 +133,12 @@ def run(args) -> int:
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)
-    if _cluster_opts.wanted(args) and (args.mode != "cold" or args.shard):
+    here = args.mode != "cold" or args.shard  # (not independent chunks: BSFS_SCHEDULER idle)
+    if here and _cluster_opts.explicit(args):
         raise ui.CLIError("--scheduler/--workers run the independent chunks of a cold sweep: "
                           "drop them for --mode continued (each point starts from the last) "
                           "or drop --shard (the devices of this one process)")
-    with _cluster_opts.cluster_from_args(args, "sweep") as cluster:
+    with _cluster_opts.cluster_from_args(args, "sweep", enabled=not here) as cluster:
         try:
             result = sweep(problem, values, mode=args.mode, direction=args.direction,
                            config=config, transient=fixed if verify is not None else None,

@@ -40,11 +40,16 @@ def wanted(args) -> bool:
                 or os.environ.get(ENV))
 
 
+def explicit(args) -> bool:
+    """Whether the command line itself names a cluster (not only BSFS_SCHEDULER)."""
+    return bool(getattr(args, "scheduler", None) or getattr(args, "workers", None))
+
+
 @contextmanager
-def cluster_from_args(args, command: str):
+def cluster_from_args(args, command: str, enabled: bool = True):
     """The `Cluster` named by --scheduler / --workers / BSFS_SCHEDULER, or None (the work
-    runs in this process as before); closed on leaving."""
-    if not wanted(args):
+    runs in this process as before; also where not `enabled`); closed on leaving."""
+    if not enabled or not wanted(args):
         yield None
         return
     from ..cluster import open_cluster

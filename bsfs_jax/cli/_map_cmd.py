@@ -321,11 +321,13 @@ def run(args) -> int:
                             block_periods=args.block_periods,
                             align_periods=min(16, args.block_periods // 4),
                             kernel_checks=args.kernel_checks)
-    if _cluster_opts.wanted(args) and (args.shard or args.batch_atlas == "grid"):
+    here = args.shard or args.batch_atlas == "grid"  # (one process: BSFS_SCHEDULER idle)
+    if here and _cluster_opts.explicit(args):
         raise ui.CLIError("--scheduler/--workers run one row per chunk: drop --shard (the "
                           "devices of this one process) or --batch-atlas grid")
     folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
-    if bifs is not None and args.method == "shooting" and not _cluster_opts.wanted(args):
+    remote = _cluster_opts.wanted(args) and not here
+    if bifs is not None and args.method == "shooting" and not remote:
         # The rows' corrector is the longest compilation of a cold map (traced ~4 s,
         # compiled 7-14 s): start it first, on the background thread, from the first
         # row's family (its layout needs only the state's size, six).
@@ -338,7 +340,7 @@ def run(args) -> int:
             family0, family0.vector_field, shooting, np.zeros(6),
             x[0] if args.band is None else args.band[0], amplitude_index=2,
             amplitudes="events")
-    with _cluster_opts.cluster_from_args(args, "map") as cluster:
+    with _cluster_opts.cluster_from_args(args, "map", enabled=remote) as cluster:
         try:
             result = atlas(
                 row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,

@@ -1,13 +1,18 @@
 """Studies beyond one machine: independent chunks of work on a Dask cluster.
 
-bsfs's long jobs are many independent tasks (an atlas's rows, a sweep's chunks, a
-study's synthetic drives, a forecast's bootstrap refits). `Cluster` sends them to the
-workers of a Dask cluster (`Cluster(scheduler=ADDRESS)`, `Cluster(workers=N)` for a
-local one; `open_cluster` reads `BSFS_SCHEDULER` too), each chunk one single-host JAX
-program in a worker process; the results come back to this process, which alone writes
-the output folder. A worker that dies loses only its chunk, which runs again elsewhere;
-a chunk that fails twice is reported with its cause while the others complete. Workers
-share one persistent compilation cache, one folder per CPU kind (`host_cache_dir`).
+bsfs's long jobs are many independent tasks. `Cluster` sends them to the workers of a
+Dask cluster (`Cluster(scheduler=ADDRESS)`, `Cluster(workers=N)` for a local one;
+`open_cluster` reads `BSFS_SCHEDULER` too), each chunk one single-host JAX program in a
+worker process; the results come back to this process, which alone writes the output
+folder. `Cluster.run` is the `runner=` of `bsfs_jax.analysis.atlas` (one row per chunk)
+and `bsfs_jax.analysis.sweep` (a cold sweep's chunks, then its verification's). A worker
+that dies loses only its chunk, which runs again elsewhere; a chunk that fails twice is
+reported with its cause while the others complete. Workers share one persistent
+compilation cache, one folder per CPU kind (`host_cache_dir`), and need the same bsfs
+(and jax) as the client: the chunks' functions travel by reference to its modules.
+
+    with Cluster(workers=2) as cluster:
+        result = sweep(problem, values, config=config, verify=verify, runner=cluster.run)
 
 Dask (`pip install 'bsfs[cluster]'`) is imported only when a cluster is opened.
 """
