@@ -129,7 +129,6 @@ def run(args) -> int:
     ui.warn_implausible_excitation(
         forces=values if args.param == "force_n" else [args.force],
         frequencies=values if args.param == "frequency_hz" else [args.frequency])
-    folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
     source = args.params or f"preset:{args.preset or 'default'}"
     fixed = None if args.transient == "auto" or args.mode != "cold" else \
         np.full(values.size, transient)
@@ -139,6 +138,8 @@ def run(args) -> int:
                           "drop them for --mode continued (each point starts from the last) "
                           "or drop --shard (the devices of this one process)")
     with _cluster_opts.cluster_from_args(args, "sweep", enabled=not here) as cluster:
+        # only now: a refused command line (or an unreachable scheduler) leaves no folder
+        folder = ui.out_dir(args.out)
         try:
             result = sweep(problem, values, mode=args.mode, direction=args.direction,
                            config=config, transient=fixed if verify is not None else None,

@@ -325,8 +325,9 @@ def run(args) -> int:
     if here and _cluster_opts.explicit(args):
         raise ui.CLIError("--scheduler/--workers run one row per chunk: drop --shard (the "
                           "devices of this one process) or --batch-atlas grid")
-    folder = ui.out_dir(args.out)  # only now: a refused command line leaves no folder behind
     remote = _cluster_opts.wanted(args) and not here
+    # only now: a refused command line (or an unreachable scheduler) leaves no folder behind
+    folder = None if remote else ui.out_dir(args.out)
     if bifs is not None and args.method == "shooting" and not remote:
         # The rows' corrector is the longest compilation of a cold map (traced ~4 s,
         # compiled 7-14 s): start it first, on the background thread, from the first
@@ -341,6 +342,7 @@ def run(args) -> int:
             x[0] if args.band is None else args.band[0], amplitude_index=2,
             amplitudes="events")
     with _cluster_opts.cluster_from_args(args, "map", enabled=remote) as cluster:
+        folder = folder or ui.out_dir(args.out)
         try:
             result = atlas(
                 row_problem, x, ys, y_name=args.y, y_unit=y_unit, config=config,
