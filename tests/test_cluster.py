@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -21,13 +20,12 @@ pytest.importorskip("distributed")
 
 from bsfs_jax.analysis import (  # noqa: E402
     SweepConfig,
-    SweepProblem,
     VerifySettings,
     atlas,
     sweep,
 )
 from bsfs_jax.cluster import Cluster, cpu_key, host_cache_dir, open_cluster  # noqa: E402
-from tests.textbook import duffing  # noqa: E402
+from tests.test_atlas import row_problem  # noqa: E402  (the same Duffing rows)
 
 GAMMAS = np.array([0.20, 0.28])
 OMEGAS = np.array([1.20, 1.22, 1.25, 1.27])
@@ -39,17 +37,6 @@ VERIFY = VerifySettings(max_period=8, block_periods=64, max_blocks=2, min_blocks
 SWEEP_GAMMAS = np.linspace(0.1, 0.4, 18)
 SWEEP_CFG = SweepConfig(transient_periods=60, periods=16, samples_per_period=16,
                         lyapunov=False, batch_size=2, chunk_size=4)
-
-
-def gamma_setup(data, gamma):
-    delta, alpha, beta, omega = data
-    return (delta, alpha, beta, gamma, omega), 2.0 * jnp.pi / omega
-
-
-def row_problem(omega):
-    return SweepProblem(duffing, gamma_setup, jnp.array([0.3, -1.0, 1.0, omega]),
-                        jnp.array([1.0, 0.0]), "gamma", unit="1", observe=0,
-                        state_names=("x", "v"), state_units=("1", "1"), time_unit="1")
 
 
 def fake_bifurcations(omega):
