@@ -13,6 +13,8 @@ truth, the z-score log(value / truth) / scaled_std, convergence and time.
     python scripts/coverage_study.py --quick              # 10 replicates, a check
     python scripts/coverage_study.py --design linear      # diagnosis designs, see DESIGNS
     python scripts/coverage_study.py --report-only        # tables and figure from the file
+    python scripts/coverage_study.py --replicates 1000 --workers 8   # on a local Dask
+                    # cluster, a batch of replicates a chunk (or --scheduler ADDRESS)
 
 Every replicate is appended as one JSON line to out/coverage/<design>.jsonl (flushed and
 fsynced per line); a rerun skips the seeds already there, so an interrupted study resumes.
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import platform
@@ -42,6 +45,7 @@ from bsfs_jax.cli import setup_jax  # noqa: E402
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
 import numpy as np  # noqa: E402
+import study_cluster  # noqa: E402
 
 import bsfs_jax  # noqa: E402
 import identification as idn  # noqa: E402
@@ -515,6 +519,38 @@ def diagnose(data_dir: Path) -> str:
 # ----------------------------------------------------------------------------- main
 
 
+def batch_rows(truth, prior, design: str, batch: list[int]) -> list[dict]:
+    """The rows of a batch of replicates (their records synthesised together, then each
+    fitted): a unit of work on a cluster (`study_cluster.run_units`), the same rows as
+    `_run_here`'s."""
+    t = time.perf_counter()
+    recs = batch_records(truth, design, batch)
+    share = (time.perf_counter() - t) / len(batch)
+    return [run_replicate(truth, prior, design, k, None, rec, share)
+            for k, rec in zip(batch, recs)]
+
+
+def _run_here(truth, prior, design: str, batches: list, frf_dir, keep) -> None:
+    """Every batch in this process, `keep(row)` for each replicate: the next batch's
+    records are synthesised in a second thread while this batch is fitted (jax releases
+    the GIL while it computes: two cores, both busy)."""
+    pool = ThreadPoolExecutor(max_workers=1)
+
+    def synth(batch):
+        t = time.perf_counter()
+        recs = batch_records(truth, design, batch)
+        return recs, (time.perf_counter() - t) / len(batch)
+
+    future = pool.submit(synth, batches[0])
+    for b, batch in enumerate(batches):
+        recs, share = future.result()
+        if b + 1 < len(batches):
+            future = pool.submit(synth, batches[b + 1])
+        for k, rec in zip(batch, recs):
+            keep(run_replicate(truth, prior, design, k, frf_dir, rec, share))
+    pool.shutdown()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--replicates", type=int, default=120)
@@ -531,7 +567,11 @@ def main(argv=None) -> int:
     ap.add_argument("--diagnose", action="store_true",
                     help="compare the saved data (--save-frf) with the linear model and the "
                          "stated standard errors")
+    study_cluster.add_args(ap)
     args = ap.parse_args(argv)
+    if args.save_frf and (args.workers or args.scheduler):
+        raise SystemExit("--save-frf writes each replicate's data where it is fitted: run it "
+                         "without --workers/--scheduler")
     if args.diagnose:
         text = diagnose(OUT / f"{args.design}_data")
         print(text)
@@ -550,36 +590,30 @@ def main(argv=None) -> int:
         frf_dir = OUT / f"{args.design}_data" if args.save_frf else None
         t_start = time.perf_counter()
         batches = [todo[i:i + args.batch] for i in range(0, len(todo), args.batch)]
-        # The next batch's records are synthesised in a second thread while this batch is
-        # fitted (jax releases the GIL while it computes: two cores, both busy).
-        pool = ThreadPoolExecutor(max_workers=1)
+        count = iter(range(1, len(todo) + 1))
 
-        def synth(batch):
-            t = time.perf_counter()
-            recs = batch_records(truth, args.design, batch)
-            return recs, (time.perf_counter() - t) / len(batch)
+        def keep(row):
+            row["host"] = platform.node()
+            append_line(path, row)
+            rows.append(row)
+            j = next(count)
+            el = time.perf_counter() - t_start
+            eta = el / j * (len(todo) - j)
+            zs = " ".join(f"{p['z']:+.2f}" for p in row["params"].values())
+            print(f"[{j}/{len(todo)}] replicate {row['replicate']}: z = {zs}  covered "
+                  f"{sum(p['covers'] for p in row['params'].values())}/"
+                  f"{len(row['params'])}  conv {row['converged']}  synth "
+                  f"{row['synth_s']:.1f} s fit {row['fit_s']:.1f} s  (elapsed {el:.0f} s, "
+                  f"ETA {eta:.0f} s)", flush=True)
 
-        future = pool.submit(synth, batches[0])
-        j = -1
-        for b, batch in enumerate(batches):
-            recs, share = future.result()
-            if b + 1 < len(batches):
-                future = pool.submit(synth, batches[b + 1])
-            for k, rec in zip(batch, recs):
-                j += 1
-                row = run_replicate(truth, prior, args.design, k, frf_dir, rec, share)
-                row["host"] = platform.node()
-                append_line(path, row)
-                rows.append(row)
-                el = time.perf_counter() - t_start
-                eta = el / (j + 1) * (len(todo) - j - 1)
-                zs = " ".join(f"{p['z']:+.2f}" for p in row["params"].values())
-                print(f"[{j + 1}/{len(todo)}] replicate {k}: z = {zs}  covered "
-                      f"{sum(p['covers'] for p in row['params'].values())}/"
-                      f"{len(row['params'])}  conv {row['converged']}  synth "
-                      f"{row['synth_s']:.1f} s fit {row['fit_s']:.1f} s  (elapsed {el:.0f} s, "
-                      f"ETA {eta:.0f} s)", flush=True)
-        pool.shutdown()
+        cluster = study_cluster.open_from(args)
+        if cluster is None:
+            _run_here(truth, prior, args.design, batches, frf_dir, keep)
+        else:
+            with cluster:
+                one = functools.partial(batch_rows, truth, prior, args.design)
+                study_cluster.run_units(one, batches, lambda _, out: [keep(r) for r in out],
+                                        cluster)
         print(f"{len(todo)} replicates in {time.perf_counter() - t_start:.0f} s", flush=True)
     rows = sorted((r for r in rows if r["replicate"] < n), key=lambda r: r["replicate"])
     if not rows:

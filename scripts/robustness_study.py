@@ -26,6 +26,9 @@ the default preset as prior with the default priors, 3 starts, the staged multi-
     python scripts/robustness_study.py --set default --seed-offset 10  # another realisation
     python scripts/robustness_study.py --set default --pool A.jsonl B.jsonl  # pooled summary
                                                   # the bias of model and estimator alone
+    python scripts/robustness_study.py --set default --drives 545 --workers 8  # a drive a
+                                                  # chunk on a local Dask cluster
+    python scripts/robustness_study.py --set default --scheduler tcp://login1:8786
 
 Each drive is appended as one JSON line to out/robustness/<set>.jsonl (fsynced); a rerun
 skips the drives already there, so an interrupted study resumes. Results: docs/ROBUSTNESS.md.
@@ -35,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import platform
 import sys
@@ -47,6 +51,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 import numpy as np  # noqa: E402
+import study_cluster  # noqa: E402
 from coverage_study import (  # noqa: E402
     append_line,
     binom_ci,
@@ -209,6 +214,11 @@ def run_drive(kind: str, drive: int, clean: bool = False, draw: str = "uniform",
                 synth_s=t1 - t0, fit_s=t2 - t1)
 
 
+def drive_row(kind: str, clean: bool, draw: str, priors, seed_offset: int, drive: int):
+    """`run_drive` with the drive last: a unit of work (`study_cluster.run_units`)."""
+    return run_drive(kind, drive, clean, draw, priors, seed_offset)
+
+
 def summarize(rows: list[dict], kind: str) -> dict:
     n = len(rows)
     conv = [r for r in rows if r.get("converged")]
@@ -326,10 +336,20 @@ def main(argv=None) -> int:
                          "drives, e.g. the study's rows and --seed-offset runs) and stop")
     ap.add_argument("--out", type=Path, default=OUT,
                     help=f"results folder (default {OUT.relative_to(ROOT)})")
+    study_cluster.add_args(ap)
     args = ap.parse_args(argv)
     kinds = args.set or ["preload", "default"]
     if args.pool:
         return _pooled(args.pool, kinds)
+    cluster = None if args.report_only else study_cluster.open_from(args)
+    try:
+        return _run_sets(args, kinds, cluster)
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def _run_sets(args, kinds, cluster) -> int:
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     commit = _commit()
@@ -341,16 +361,19 @@ def main(argv=None) -> int:
         path = out / f"{kind}{tag}.jsonl"
         done = {r["drive"] for r in read_done(path)}
         if not args.report_only:
-            for drive in range(args.first, args.drives):
-                if drive in done:
-                    continue
-                row = dict(run_drive(kind, drive, args.noise_free, args.draw,
-                                     None if args.no_priors else "default",
-                                     args.seed_offset), commit=commit)
+            todo = [d for d in range(args.first, args.drives) if d not in done]
+            one = functools.partial(drive_row, kind, args.noise_free, args.draw,
+                                    None if args.no_priors else "default", args.seed_offset)
+
+            def keep(drive, row, kind=kind, path=path):
+                row = dict(row, commit=commit)
                 append_line(path, row)
                 print(f"[{kind} {drive + 1}/{args.drives}] converged={row.get('converged')} "
                       f"cause={row.get('cause')} fit {row.get('fit_s', 0):.1f} s", flush=True)
-        rows = [r for r in read_done(path) if r["drive"] < args.drives]
+
+            study_cluster.run_units(one, todo, keep, cluster, modules=("coverage_study",))
+        rows = sorted((r for r in read_done(path) if r["drive"] < args.drives),
+                      key=lambda r: r["drive"])
         if not rows:
             continue
         s = _summary(rows, kind)

@@ -1,5 +1,6 @@
 """--scheduler / --workers for the commands whose work splits into independent chunks
-(`bsfs map`: its rows; `bsfs sweep`: its chunks): the chunks then run on a Dask cluster
+(`bsfs map`: its rows; `bsfs sweep`: its chunks; `bsfs identify`: its refits' batches;
+`bsfs predict`: its draws' batches): the chunks then run on a Dask cluster
 (`bsfs_jax.cluster`), and this process alone writes the output folder. Without either
 option (and without BSFS_SCHEDULER) nothing changes."""
 
@@ -22,16 +23,16 @@ def _workers(text: str) -> int:
     return value
 
 
-def add_args(parser) -> None:
-    """--scheduler ADDRESS | --workers N (mutually exclusive)."""
+def add_args(parser, what: str = "the independent chunks") -> None:
+    """--scheduler ADDRESS | --workers N (mutually exclusive); `what`: what they run."""
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run the independent chunks on the Dask cluster whose scheduler "
+                       help=f"run {what} on the Dask cluster whose scheduler "
                        f"is at ADDRESS (e.g. tcp://login1:8786; default ${ENV}); only this "
                        "process writes --out (pip install 'bsfs[cluster]')")
     group.add_argument("--workers", type=_workers, metavar="N",
                        help="start a local Dask cluster of N worker processes (one thread "
-                       "each) and run the independent chunks on it")
+                       f"each) and run {what} on it")
 
 
 def wanted(args) -> bool:
@@ -83,3 +84,13 @@ def report(cluster, command: str, failed: list) -> dict | None:
               f"{f['attempts']} times ({f['cause']}); its points are marked; rerun the same "
               "command with the same --out to compute them", flush=True)
     return out
+
+
+def account(cluster) -> dict | None:
+    """`bsfs_jax.cluster.summary` of the cluster's chunks (None without a cluster), its
+    "failed_chunks" being those that failed on every attempt, with their causes."""
+    if cluster is None:
+        return None
+    from ..cluster import summary
+
+    return summary(cluster)

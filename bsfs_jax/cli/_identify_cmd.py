@@ -4,6 +4,7 @@ import importlib
 import sys
 import time
 
+from . import _cluster_opts
 from . import _common as ui
 
 
@@ -64,6 +65,7 @@ def register(sub) -> None:
                    "from the estimate; the forecast's draws where its delta method is "
                    "doubtful). auto: 200 where at most 5 parameters are fitted and no record "
                    "needs the periodic-orbit model (about 2 s), else none; 0: none")
+    _cluster_opts.add_args(p, "the refits, in batches of 32")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they show only on a terminal anyway)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -119,7 +121,18 @@ def run_identify(args) -> int:
         priors = None if args.no_priors else idn.parse_priors(args.prior, names)
     except ValueError as exc:
         raise ui.CLIError(str(exc)) from None
+    if args.refits == 0 and _cluster_opts.explicit(args):
+        raise ui.CLIError("--scheduler/--workers run identify's bootstrap refits, and "
+                          "--refits 0 asks for none; drop one of them")
     earlier = _read_report(args.compare) if args.compare else None
+    # a cluster is opened before the output folder is made: an unreachable one leaves none
+    with _cluster_opts.cluster_from_args(args, "identify", enabled=args.refits != 0) as cl:
+        return _identify(args, prior, names, priors, earlier, cl)
+
+
+def _identify(args, prior, names, priors, earlier, cluster) -> int:
+    import identification as idn
+
     records = args.records or [str(p) for p in idn.bundled_records(args.data)]
     if not args.records:
         print(f"bsfs identify: no records named; using the bundled SYNTHETIC data set "
@@ -149,9 +162,14 @@ def run_identify(args) -> int:
     if post is not None:
         report["posterior"] = post.as_dict()
         report["summary"] += "\n" + idn.posterior_text(report["posterior"], report)
-    refits = _refits(res, args)
+    refits = _refits(res, args, cluster)
     if refits is not None:
         report["refits"] = refits.as_dict()
+        if cluster is not None:
+            report["refits"]["cluster"] = _cluster_opts.account(cluster)
+            for f in refits.failed:
+                print(f"bsfs identify: warning: a batch of {f['refits']} refits failed on "
+                      f"the cluster ({f['cause']}); counted as not converged", flush=True)
         report["summary"] += "\n" + _refits_line(refits)
     paths = idn.write_identified(res, out)
     ui.write_json(out / "report.json", report)
@@ -201,8 +219,9 @@ def run_identify(args) -> int:
     return 0 if res.fit.converged else 4
 
 
-def _refits(res, args):
-    """The refits `--refits` asks for (`identification.refits_for`), with a progress bar."""
+def _refits(res, args, cluster=None):
+    """The refits `--refits` asks for (`identification.refits_for`), with a progress bar;
+    on `cluster`'s workers where one is open."""
     from tqdm.auto import tqdm
 
     import identification as idn
@@ -215,7 +234,8 @@ def _refits(res, args):
             bar.update(done - bar.n)
             lines(done, n)
 
-        return idn.refits_for(res, args.refits, seed=args.seed, on_batch=on_batch)
+        return idn.refits_for(res, args.refits, seed=args.seed, on_batch=on_batch,
+                              runner=None if cluster is None else cluster.run)
 
 
 def _refits_line(refits) -> str:

@@ -1,5 +1,6 @@
 """`bsfs predict`: what an identified drive will do, with 95 % intervals."""
 
+from . import _cluster_opts
 from . import _common as ui
 
 
@@ -28,6 +29,8 @@ def register(sub) -> None:
                    help="screw speed [r/min] (default: the identification's)")
     p.add_argument("--nominal", metavar="TOML",
                    help="the nominal drive (default: the default preset)")
+    _cluster_opts.add_args(p, "the model at the identification's draws (its refits or "
+                           "posterior draws), in batches")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run_predict)
 
@@ -42,10 +45,20 @@ def run_predict(args) -> int:
     try:
         ident = load_identified(args.source, args.speed)
         nominal = bsfs_jax.load_params(args.nominal) if args.nominal else None
-        fc = forecast(ident, args.force, start_hz=args.start, stop_hz=args.stop,
-                      nominal=nominal)
     except ForecastError as exc:
         raise ui.CLIError(str(exc)) from None
+    if ident.draws is None and _cluster_opts.explicit(args):
+        raise ui.CLIError(f"--scheduler/--workers run the model at the identification's "
+                          f"draws, and {args.source} has none ({ident.draws_note}); run "
+                          "`bsfs identify --refits N` first, or drop the option")
+    with _cluster_opts.cluster_from_args(args, "predict",
+                                         enabled=ident.draws is not None) as cluster:
+        try:
+            fc = forecast(ident, args.force, start_hz=args.start, stop_hz=args.stop,
+                          nominal=nominal, cluster=cluster)
+        except ForecastError as exc:
+            raise ui.CLIError(str(exc)) from None
+        on_cluster = _cluster_report(cluster)
     result = fc.to_dict()
     quantities = result["quantities"]
     by_name = {q["name"]: q for q in quantities}
@@ -66,6 +79,8 @@ def run_predict(args) -> int:
              "covariance; 'draws' says which were saved, each quantity's method which was "
              "used). dominated_by names the fitted parameter whose own variance "
              "contributes most")
+    if on_cluster is not None:
+        data["cluster"] = on_cluster
     out = ui.out_dir(args.out)
     ui.write_json(out / "prediction.json", data)
     fig = forecast_figure(fc.curves, fc.nominal_branch, by_name, fc.force_n)
@@ -75,6 +90,19 @@ def run_predict(args) -> int:
         print(h["line"])
     print(f"wrote {out / 'prediction.json'}, {out / 'prediction.png'}")
     return 0
+
+
+def _cluster_report(cluster) -> dict | None:
+    """prediction.json's "cluster" (None without one): `_cluster_opts.report`'s account;
+    a batch that failed on every attempt there was computed in this process instead."""
+    if cluster is None:
+        return None
+    out = _cluster_opts.account(cluster)
+    for f in out["failed_chunks"]:
+        f["note"] = "computed in this process instead"
+        print(f"bsfs predict: warning: a batch of draws failed {f['attempts']} times on the "
+              f"cluster ({f['cause']}); computed here instead", flush=True)
+    return out
 
 
 def _fmt(x):

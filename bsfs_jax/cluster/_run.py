@@ -16,6 +16,7 @@ Faults:
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 
@@ -31,6 +32,20 @@ def _dask():
         raise RuntimeError("a cluster (--scheduler/--workers) needs dask and distributed: "
                            "pip install 'bsfs[cluster]'") from None
     return distributed
+
+
+def _as_numpy(tree):
+    """`tree` with its jax arrays as numpy arrays (the same values and dtypes): a chunk's
+    arguments travel as numpy, whatever the worker's precision setting."""
+    import sys
+
+    jax = sys.modules.get("jax")
+    if jax is None:
+        return tree
+    import numpy as np
+
+    return jax.tree_util.tree_map(
+        lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, tree)
 
 
 class ChunkFailed(RuntimeError):
@@ -83,6 +98,7 @@ class Cluster:
         self.records: list[dict] = []
         self.failures: list[ChunkFailed] = []
         self._local = None
+        self._runs = itertools.count()
         self.client = client
         if client is None:
             self._start()
@@ -100,6 +116,7 @@ class Cluster:
                     f"{self.timeout:g} s ({type(exc).__name__}): start one (`dask "
                     "scheduler`, then `dask worker ADDRESS` on each node) or correct "
                     f"--scheduler / ${ENV}") from None
+            self._register()
             return
         # One thread per worker process: each chunk is one JAX program on its host. The
         # nannies start the workers as new processes ("spawn"), never by forking a process
@@ -109,6 +126,14 @@ class Cluster:
                 n_workers=self.workers, threads_per_worker=1, processes=True,
                 dashboard_address=None, silence_logs=50)  # (failures: in our summary)
         self.client = distributed.Client(self._local)
+        self._register()
+
+    def _register(self) -> None:
+        """Every worker, now and joining later, chooses its settings as it joins
+        (`_plugin.Ready`): before it unpickles a task's arguments."""
+        from ._plugin import Ready
+
+        self.client.register_plugin(Ready(self.cache))
 
     @property
     def n_workers(self) -> int:
@@ -120,16 +145,18 @@ class Cluster:
 
     def run(self, fn, items, *, name: str = "bsfs-chunk"):
         """Yield `(position, fn(item))` for every item as the chunks finish; a chunk that
-        failed on every attempt yields its `ChunkFailed` (also kept in `failures`)."""
+        failed on every attempt yields its `ChunkFailed` (also kept in `failures`). Runs
+        from several threads of the client at once may share the cluster."""
         distributed = _dask()
         from ._worker import run_chunk
 
         items = list(items)
         if not items:
             return
+        items = [_as_numpy(x) for x in items]  # (jax arrays: `_plugin`'s docstring)
         payload = _dumps(fn)
         kind = getattr(getattr(fn, "func", fn), "__qualname__", "chunk")
-        stamp = f"{name}-{time.time_ns():x}"
+        stamp = f"{name}-{time.time_ns():x}-{next(self._runs)}"  # (runs from two threads)
         submits = {}
 
         def submit(k: int):

@@ -260,11 +260,17 @@ def forecast_modal(ident: Identified, nominal=None) -> dict:
 
 
 def forecast(ident: Identified, force_n: float, *, start_hz=None, stop_hz=None,
-             nominal=None, settings=None, nominal_curve: bool = True) -> Forecast:
+             nominal=None, settings=None, nominal_curve: bool = True,
+             cluster=None) -> Forecast:
     """The forecast (`prediction.json`'s content less the file fields): quantities, health,
     the FRC branches (estimate, probes) and, with `nominal_curve`, the nominal drive's
-    (for the figure only; the coverage study skips it)."""
+    (for the figure only; the coverage study skips it). `cluster`: a
+    `bsfs_jax.cluster.Cluster` whose workers follow the FRC's points and the lift-off
+    search to the identification's draws, a batch of draws a chunk (the same values as
+    here; `Identified.cluster`)."""
     require_x64("identification.forecast")
+    if cluster is not None:
+        ident = dataclasses.replace(ident, cluster=cluster)
     import bsfs_jax
     from bsfs_jax.design import OrbitSettings
 

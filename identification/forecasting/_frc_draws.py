@@ -33,7 +33,7 @@ import numpy as np
 
 import bsfs_jax
 
-from ._intervals import Identified, draw_batches, lane_threads, run_batches
+from ._intervals import Identified, draw_batches, lane_parts, run_batches
 
 BATCH_ROUND = 8  # the last batch of draws padded to a multiple of this (`draw_batches`)
 #: The peak frequency's central differences step +-CENTRAL_SD standard deviations of each
@@ -100,7 +100,8 @@ def _calls(ident: Identified, force: float, hints, peak, central: bool = False) 
     rows = [central_steps(ident)] if central else []
     rows += [] if ident.draws is None else [ident.draws]
     batches = [np.asarray(ident.theta)[None]] if not rows else draw_batches(
-        dataclasses.replace(ident, draws=np.concatenate(rows)), BATCH_ROUND, lane_threads())
+        dataclasses.replace(ident, draws=np.concatenate(rows)), BATCH_ROUND,
+        lane_parts(ident))
     return [(ident.coordinates, theta, jnp.asarray(thetas, float), force, stacked, weights)
             for thetas in batches]
 
@@ -113,7 +114,8 @@ def points_at_draws(ident: Identified, force: float, hints, peak, calls=None,
     `skip` lanes before the draws; `first`: the first call's result, where computed."""
     calls = _calls(ident, force, hints, peak) if calls is None else calls
     done = [] if first is None else [first]
-    return _followed(done + run_batches(_points_at_draws, calls[len(done):]), skip,
+    return _followed(done + run_batches(_points_at_draws, calls[len(done):],
+                                    ident.cluster), skip,
                      len(ident.draws))
 
 
@@ -149,9 +151,10 @@ def frc_points(ident: Identified, force: float, specs, central: bool = False
         peak.append(is_peak)
     central = central and True in peak
     calls = _calls(ident, force, hints, peak, central)
-    _points_at_draws.prefetch_now(*calls[0])
+    if ident.cluster is None or ident.draws is None:  # (else the workers compile it)
+        _points_at_draws.prefetch_now(*calls[0])
     # every batch at once, on `run_batches`' threads (the gradients are the first's)
-    results = functools.cache(lambda: run_batches(_points_at_draws, calls))
+    results = functools.cache(lambda: run_batches(_points_at_draws, calls, ident.cluster))
     p = len(ident.theta)
     skip = 2 * p if central else 0
 

@@ -69,6 +69,9 @@ class Identified:
     draws: np.ndarray | None = None
     draws_note: str | None = None
     draws_kind: str | None = None
+    # where the draws' batches run (`run_batches`): None, this process's threads; a
+    # `bsfs_jax.cluster.Cluster`, its workers, a batch a chunk (`forecast(cluster=...)`)
+    cluster: object = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def coordinates(self) -> Coordinates:
@@ -371,6 +374,14 @@ def lane_threads() -> int:
     return max(1, min(4, os.cpu_count() or 1))
 
 
+def lane_parts(ident: Identified) -> int:
+    """How many batches costly lanes are cut into: `lane_threads()`, or on a cluster at
+    least one per worker."""
+    if ident.cluster is None:
+        return lane_threads()
+    return max(lane_threads(), ident.cluster.n_workers)
+
+
 def on_threads(fn, items: list, workers: int) -> list:
     """[fn(x) for x in items], on up to `workers` threads (in order; in this thread where
     one is enough). XLA runs a compiled program without Python's lock, so host-driven
@@ -384,15 +395,30 @@ def on_threads(fn, items: list, workers: int) -> list:
         return list(pool.map(fn, items))
 
 
-def run_batches(fn, calls: list) -> list:
-    """[fn(*args) for args in calls] as numpy trees, the calls on `lane_threads()`
-    threads (`on_threads`). The FRC's three points followed by shooting to 200 refits and
-    10 central steps on the 2-core machine: 18.4 s as one batch, 8.5 s as two on two
-    threads."""
+def numpy_call(fn, args):
+    """fn(*args) as a numpy tree (a batch's chunk, in this process or on a worker)."""
     import jax
 
-    return on_threads(lambda args: jax.tree_util.tree_map(np.asarray, fn(*args)), calls,
-                      lane_threads())
+    return jax.tree_util.tree_map(np.asarray, fn(*args))
+
+
+def run_batches(fn, calls: list, cluster=None) -> list:
+    """[fn(*args) for args in calls] as numpy trees, the calls on `lane_threads()`
+    threads (`on_threads`), or with `cluster` (`Identified.cluster`) on its workers, a
+    call a chunk (`fn`, a module-level function, travels by reference; a chunk that
+    failed on every attempt there runs here instead, and stays in the cluster's
+    `failures`). The FRC's three points followed by shooting to 200 refits and 10
+    central steps on the 2-core machine: 18.4 s as one batch, 8.5 s as two on two
+    threads."""
+    import functools
+
+    job = functools.partial(numpy_call, fn)
+    if cluster is None:
+        return on_threads(job, calls, lane_threads())
+    out: list = [None] * len(calls)
+    for k, value in cluster.run(job, calls, name="bsfs-draws"):
+        out[k] = job(calls[k]) if isinstance(value, Exception) else value
+    return out
 
 
 def value_jac_hess(fn, x):

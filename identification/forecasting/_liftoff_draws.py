@@ -20,7 +20,7 @@ import bsfs_jax
 from bsfs_jax.machine import JOINTS
 
 from ._frc_draws import BATCH_ROUND
-from ._intervals import draw_batches, lane_threads, run_batches
+from ._intervals import draw_batches, lane_parts, run_batches
 
 FIRST_STEP = 1e-3  # the secant's second force: the first times (1 + FIRST_STEP)
 # The lift-off secant (here and at the estimate, `_liftoff.search_on_orbits`): at most
@@ -116,7 +116,7 @@ def _calls(ident, hint, f_star, grad, joint) -> list:
     tail = (jnp.asarray(f_star, float), jnp.asarray(grad, float), hint,
             jnp.asarray(joint, jnp.int32))
     return [(*head, jnp.asarray(thetas, float), *tail)
-            for thetas in draw_batches(ident, BATCH_ROUND, lane_threads())]
+            for thetas in draw_batches(ident, BATCH_ROUND, lane_parts(ident))]
 
 
 def prefetch_liftoff(ident, hint, joint: int) -> None:
@@ -124,6 +124,8 @@ def prefetch_liftoff(ident, hint, joint: int) -> None:
     will call for a hint of `hint`'s layout (its values do not matter): `nonlinear_liftoff`
     calls it at the search's first located peak, so that the program compiles while the
     search runs on."""
+    if ident.cluster is not None:
+        return  # the workers compile it
     _liftoff_lanes.prefetch_now(*_calls(ident, hint, 1.0, np.zeros(len(ident.theta)),
                                         joint)[0])
 
@@ -133,6 +135,6 @@ def liftoff_at_draws(ident, hint, f_star: float, grad, joint: int, *,
     """(n,): joint `JOINTS[joint]`'s lift-off force [N] on the nonlinear orbits at each of
     the identification's n draws; NaN where the model failed there. `details`: the
     program's (n, 4) columns instead (`_liftoff_lanes`)."""
-    out = np.concatenate(run_batches(_liftoff_lanes, _calls(ident, hint, f_star, grad,
-                                                            joint)))[:len(ident.draws)]
+    calls = _calls(ident, hint, f_star, grad, joint)
+    out = np.concatenate(run_batches(_liftoff_lanes, calls, ident.cluster))[:len(ident.draws)]
     return out if details else np.where(out[:, 1] > 0.5, out[:, 0], np.nan)

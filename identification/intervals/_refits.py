@@ -39,6 +39,7 @@ from ..fitting import STEP_TOL, SolveOptions, solve, solved_lanes
 REFITS = 200  # default number of refits (`bsfs identify --refits`)
 AUTO_MAX_PARAMETERS = 5
 MIN_CONVERGED = 0.95
+BATCH = 4 * 8  # refits per call of `solve`: whole lane classes (4), one compiled program
 METHOD = "randomised maximum likelihood (data and prior perturbed, refitted from the estimate)"
 
 
@@ -52,6 +53,8 @@ class Refits:
     requested: int
     seed: int
     seconds: float
+    # batches that failed on every attempt on a cluster: {batch, refits, cause} each
+    failed: tuple = ()
 
     @property
     def converged(self) -> int:
@@ -64,7 +67,8 @@ class Refits:
     def as_dict(self) -> dict:
         return dict(method=METHOD, requested=self.requested, converged=self.converged,
                     usable=self.usable, min_converged=MIN_CONVERGED, seed=self.seed,
-                    seconds=round(self.seconds, 2), file="refits.npz")
+                    seconds=round(self.seconds, 2), file="refits.npz",
+                    **({"failed_batches": list(self.failed)} if self.failed else {}))
 
 
 def refits_by_default(result) -> bool:
@@ -81,15 +85,16 @@ def refits_by_default(result) -> bool:
             and not any(m == "nonlinear" for m in problem.models))
 
 
-def refits_for(result, n="auto", seed: int = 0, on_batch=None) -> Refits | None:
+def refits_for(result, n="auto", seed: int = 0, on_batch=None,
+               runner=None) -> Refits | None:
     """What `bsfs identify --refits N|auto` saves: `refit(result, n)`, with "auto" read as
     `REFITS` where `refits_by_default`, else none; None where that is none or the fit did
-    not converge (`bsfs predict` refuses an unconverged fit)."""
+    not converge (`bsfs predict` refuses an unconverged fit). `runner`: as `refit`'s."""
     if n == "auto":
         n = REFITS if refits_by_default(result) else 0
     if n == 0 or not getattr(result, "fit", result).converged:
         return None
-    return refit(result, n, seed=seed, on_batch=on_batch)
+    return refit(result, n, seed=seed, on_batch=on_batch, runner=runner)
 
 
 def perturbed(data, rng, prior: bool = True):
@@ -111,33 +116,64 @@ def perturbed(data, rng, prior: bool = True):
 
 
 def refit(result, n: int = REFITS, seed: int = 0, options: SolveOptions | None = None,
-          on_batch=None) -> Refits:
+          on_batch=None, runner=None) -> Refits:
     """`n` randomised-maximum-likelihood refits of `result` (an `IdentificationResult` or
-    a `FitResult`), seeded. `on_batch(done, n)` reports progress."""
+    a `FitResult`), seeded. `on_batch(done, n)` reports progress.
+
+    `runner`: where the batches of `BATCH` refits run; None: here, one after another;
+    `bsfs_jax.cluster.Cluster.run`: on a Dask cluster's workers, a batch a chunk. Each
+    batch carries the random generator's state at its start, so the draws, and the
+    refits, are the same wherever it runs. A batch that fails on every attempt counts
+    its refits as not converged (`Refits.failed` says why)."""
+    import functools
+
     fit = getattr(result, "fit", result)
     problem = fit.problem
     theta = np.asarray(fit.theta, float)
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     options = SolveOptions() if options is None else options
-    keep = []
-    batch = 4 * 8  # whole lane classes of `solve` (4): one compiled program
-    for lo in range(0, n, batch):
-        m = min(batch, n - lo)
-        datas = [perturbed(problem.fit_data, rng) for _ in range(m)]
-        out = solve(np.tile(theta, (m, 1)), True, datas, problem.structure, options)
-        keep += [th for th, (_, _, step) in zip(out["theta"], solved_lanes(problem, out))
-                 if step < STEP_TOL and np.all(np.isfinite(th))]
+    items = []
+    for lo in range(0, n, BATCH):
+        m = min(BATCH, n - lo)
+        items.append((m, rng.bit_generator.state))
+        for _ in range(m):  # on to the next batch's state: the same draws as `_batch`'s
+            perturbed(problem.fit_data, rng)
+    job = functools.partial(refit_batch, problem, theta, options)
+    results: list = [None] * len(items)
+    failed, done = [], 0
+    for k, value in (enumerate(map(job, items)) if runner is None else runner(job, items)):
+        if isinstance(value, Exception):  # a chunk that failed on every attempt
+            failed.append(dict(batch=k, refits=items[k][0], cause=getattr(value, "cause",
+                                                                          str(value))))
+            value = np.zeros((0, theta.size))
+        results[k] = value
+        done += items[k][0]
         if on_batch is not None:
-            on_batch(lo + m, n)
-    th = np.asarray(keep, float).reshape(-1, theta.size)
+            on_batch(done, n)
+    th = np.concatenate([np.zeros((0, theta.size)), *results])
     unc = getattr(result, "uncertainty", None)
     if unc is not None and len(th):
         f = np.asarray(unc.noise.get("line_widening", np.ones(theta.size)), float)
         th = theta + (th - theta) * f  # correlated FRF lines (module docstring)
     values = np.asarray(problem.values(th)) if len(th) else th
     return Refits(tuple(problem.names), values, th, int(n), int(seed),
-                  time.perf_counter() - t0)
+                  time.perf_counter() - t0, tuple(failed))
+
+
+def refit_batch(problem, theta, options, item) -> np.ndarray:
+    """(k, p): the converged refits of one batch, `item` = (m, the random generator's
+    state at its start): m perturbed copies of the fit data (`perturbed`), refitted from
+    `theta` in one call of `fit.solve`; a refit counts where its remaining Gauss-Newton
+    step is below `STEP_TOL` and its coordinates are finite."""
+    m, state = item
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state
+    datas = [perturbed(problem.fit_data, rng) for _ in range(m)]
+    out = solve(np.tile(theta, (m, 1)), True, datas, problem.structure, options)
+    keep = [th for th, (_, _, step) in zip(out["theta"], solved_lanes(problem, out))
+            if step < STEP_TOL and np.all(np.isfinite(th))]
+    return np.asarray(keep, float).reshape(-1, theta.size)
 
 
 def save_refits(refits: Refits, folder, estimate) -> object:

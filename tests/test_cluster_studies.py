@@ -1,0 +1,180 @@
+"""Identification's long jobs on a Dask cluster of two local worker processes: `bsfs
+identify`'s bootstrap refits and `bsfs predict`'s draws give the local run's files to
+1e-12, and the robustness and coverage studies write the local run's rows; a batch that
+fails on every attempt is counted (refits) or computed in this process (predict); a
+float64 jax array reaches a fresh worker as float64 (the worker's settings come before
+any task's arguments)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+
+from bsfs_jax.cluster import ChunkFailed, Cluster  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PRELOAD_FIT = "nut_preload,bearing_preload,c_b,c_s,c_n"
+REFITS = "64"  # two batches of 32
+
+
+class Box:
+    """Not a pytree: its array travels as pickled, not as numpy (`Cluster.run`)."""
+
+    def __init__(self, x):
+        self.x = x
+
+
+def dtype_and_error(box):
+    import jax
+
+    return str(box.x.dtype), float(box.x[0]) - 0.1, bool(jax.config.jax_enable_x64)
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    cache = os.environ.get("BSFS_CACHE_DIR") or str(tmp_path_factory.mktemp("cache"))
+    with Cluster(workers=2, cache=cache) as c:
+        yield c
+
+
+def _cli(argv, out, cluster=None):
+    from bsfs_jax.cli import main
+
+    extra = [] if cluster is None else ["--scheduler", cluster.client.scheduler.address]
+    assert main([*argv, *extra, "--out", str(out)]) in (0, 4)
+    return out
+
+
+@pytest.fixture(scope="module")
+def identified(tmp_path_factory):
+    """The bundled worn drive identified here, with 64 refits."""
+    return _cli(["identify", "--data", "preload-loss", "--fit", PRELOAD_FIT, "--refits",
+                 REFITS, "--no-progress"], tmp_path_factory.mktemp("identify") / "here")
+
+
+def _worst(a, b, path="") -> float:
+    """The largest relative difference between two JSON trees of the same shape (times,
+    the cluster's account and the printed summary, which states times, left out);
+    unequal strings fail."""
+    if isinstance(a, dict):
+        keys = [k for k in a if k not in ("cluster", "summary") and not k.endswith(
+            ("seconds", "_s"))]
+        assert set(keys) <= set(b), path
+        return max([_worst(a[k], b[k], f"{path}/{k}") for k in keys], default=0.0)
+    if isinstance(a, list):
+        assert len(a) == len(b), path
+        return max([_worst(x, y, f"{path}[{i}]") for i, (x, y) in enumerate(zip(a, b))],
+                   default=0.0)
+    if isinstance(a, float) and isinstance(b, float):
+        return abs(a - b) / max(abs(a), 1e-300)
+    assert a == b, f"{path}: {a!r} != {b!r}"
+    return 0.0
+
+
+@pytest.mark.timeout(120)
+def test_a_float64_jax_array_reaches_a_fresh_worker_as_float64(tmp_path):
+    import jax.numpy as jnp
+
+    with Cluster(workers=1, cache=str(tmp_path / "cache")) as fresh:
+        ((_, got),) = list(fresh.run(dtype_and_error, [Box(jnp.asarray([0.1]))]))
+    assert got == ("float64", 0.0, True)
+
+
+@pytest.mark.timeout(300)
+def test_identify_s_refits_on_two_workers_are_the_local_ones(cluster, identified, tmp_path):
+    there = _cli(["identify", "--data", "preload-loss", "--fit", PRELOAD_FIT, "--refits",
+                  REFITS, "--no-progress"], tmp_path / "there", cluster)
+    a, b = np.load(identified / "refits.npz"), np.load(there / "refits.npz")
+    assert a["samples"].shape == (int(REFITS), 5)
+    np.testing.assert_allclose(b["samples"], a["samples"], rtol=1e-12, atol=0)
+    report = json.loads((there / "report.json").read_text())
+    assert report["refits"]["cluster"]["chunks_done"] == 2
+    assert not report["refits"]["cluster"]["failed_chunks"]
+    assert _worst(json.loads((identified / "report.json").read_text()), report) < 1e-12
+
+
+@pytest.mark.timeout(600)
+def test_predict_s_draws_on_two_workers_give_the_local_prediction(cluster, identified,
+                                                                  tmp_path):
+    argv = ["predict", "--from", str(identified), "--force", "100"]
+    here = json.loads((_cli(argv, tmp_path / "here") / "prediction.json").read_text())
+    there = json.loads((_cli(argv, tmp_path / "there", cluster) / "prediction.json")
+                       .read_text())
+    assert here["draws"] == there["draws"] and "refits" in here["draws"]
+    # the draws decided some quantities (the lift-off force on the bundled drive)
+    assert any(q["method"].startswith("model at each draw") for q in here["quantities"])
+    assert there["cluster"]["chunks_done"] >= 2 and not there["cluster"]["failed_chunks"]
+    assert _worst(here, there) < 1e-12
+
+
+class FailingSecond:
+    """A stand-in cluster whose second chunk fails on every attempt."""
+
+    n_workers = 2
+
+    def __init__(self):
+        self.failures = []
+
+    def run(self, fn, items, name="x"):
+        for k, item in enumerate(items):
+            if k == 1:
+                failed = ChunkFailed(k, item, "MemoryError: made up", 2)
+                self.failures.append(failed)
+                yield k, failed
+            else:
+                yield k, fn(item)
+
+
+def test_a_batch_of_draws_that_fails_on_the_cluster_runs_here():
+    from identification.forecasting._intervals import run_batches
+
+    stand_in = FailingSecond()
+    out = run_batches(np.square, [(np.arange(3.0),), (np.arange(4.0),)], stand_in)
+    np.testing.assert_array_equal(out[1], np.arange(4.0) ** 2)
+    assert len(stand_in.failures) == 1
+
+
+def _study(script, args, tmp_path, cluster=None):
+    extra = [] if cluster is None else ["--scheduler", cluster.client.scheduler.address]
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args, *extra],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    return proc.stdout
+
+
+def _rows(path, key):
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    for r in rows:
+        for k in ("synth_s", "fit_s", "host", "commit"):
+            r.pop(k, None)
+    return sorted(rows, key=lambda r: r[key])
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_the_studies_on_two_workers_write_the_local_rows(cluster, tmp_path):
+    """Two drives of the robustness study and two replicates of the coverage study, a
+    unit a chunk: the rows are the local ones (to 1e-12), and a rerun resumes."""
+    for script, args, name, key in (
+            ("robustness_study.py", ["--set", "preload", "--drives", "2"],
+             "preload.jsonl", "drive"),
+            ("coverage_study.py", ["--replicates", "2", "--batch", "1"], "bundled.jsonl",
+             "replicate")):
+        here, there = tmp_path / f"{key}_here", tmp_path / f"{key}_there"
+        out = ["--out", str(here if key == "drive" else here / name)]
+        _study(script, [*args, *out], tmp_path)
+        out = ["--out", str(there if key == "drive" else there / name)]
+        said = _study(script, [*args, *out], tmp_path, cluster)
+        assert "units of work on" in said
+        a, b = _rows(here / name, key), _rows(there / name, key)
+        assert [r[key] for r in b] == [0, 1]
+        assert _worst(a, b) < 1e-12
+        again = _study(script, [*args, *out], tmp_path, cluster)
+        assert len(_rows(there / name, key)) == 2, again
