@@ -25,6 +25,9 @@ def add_args(parser) -> None:
     group.add_argument("--workers", type=int, metavar="N",
                        help="start a local Dask cluster of N worker processes and run the "
                        "units of work on it")
+    parser.add_argument("--chunk-timeout", type=float, metavar="SECONDS",
+                        help="on a cluster: a unit that runs longer is left out (a rerun "
+                        "computes it) and its worker restarted")
 
 
 def open_from(args):
@@ -34,10 +37,15 @@ def open_from(args):
 
     if args.workers is not None and args.workers < 1:
         raise SystemExit(f"--workers must be at least 1, got {args.workers}")
+    if args.chunk_timeout is not None and not args.chunk_timeout > 0:
+        raise SystemExit(f"--chunk-timeout must be positive, got {args.chunk_timeout}")
     try:
-        cluster = open_cluster(args.scheduler, args.workers)
+        cluster = open_cluster(args.scheduler, args.workers, chunk_timeout=args.chunk_timeout)
     except (RuntimeError, ValueError, OSError) as exc:
         raise SystemExit(str(exc).splitlines()[0]) from None
+    if cluster is None and args.chunk_timeout is not None:
+        raise SystemExit("--chunk-timeout limits units on a cluster: give --workers N or "
+                         "--scheduler ADDRESS too, or drop it")
     if cluster is not None:
         print(f"units of work on {cluster.describe()}", flush=True)
     return cluster

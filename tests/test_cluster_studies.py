@@ -86,6 +86,43 @@ def test_a_float64_jax_array_reaches_a_fresh_worker_as_float64(tmp_path):
     assert got == ("float64", 0.0, True)
 
 
+def sleep_then_pid(seconds):
+    import time
+
+    time.sleep(seconds)
+    return os.getpid()
+
+
+@pytest.mark.timeout(180)
+def test_a_chunk_past_its_budget_is_reported_and_its_worker_restarted(tmp_path):
+    import time
+
+    with Cluster(workers=1, cache=str(tmp_path / "cache"), chunk_timeout=3) as c:
+        t0 = time.perf_counter()
+        got = dict(c.run(sleep_then_pid, [0.0, 3600.0, 0.0]))
+        elapsed = time.perf_counter() - t0
+        ((_, after),) = list(c.run(sleep_then_pid, [0.0]))
+    assert elapsed < 60
+    assert isinstance(got[0], int) and isinstance(got[2], int)
+    assert isinstance(got[1], ChunkFailed) and got[1].attempts == 1
+    assert "TimeoutError: ran past its budget of 3 s" in got[1].cause
+    assert after != got[0]  # the worker was restarted: its overrunning thread is gone
+    assert [f.position for f in c.failures] == [1]
+
+
+def test_a_chunk_timeout_without_a_cluster_is_refused_in_one_line(tmp_path, capsys):
+    from bsfs_jax.cli import main
+
+    for argv in (["sweep", "--start", "100", "--stop", "200", "--num", "3"],
+                 ["identify", "--data", "preload-loss", "--refits", "64"]):
+        assert main([*argv, "--chunk-timeout", "60", "--out", str(tmp_path / "o")]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--chunk-timeout" in err[0], err
+        assert not (tmp_path / "o").exists()
+    with pytest.raises(SystemExit):
+        main(["sweep", "--chunk-timeout", "-1", "--out", str(tmp_path / "o")])
+
+
 @pytest.mark.timeout(300)
 def test_identify_s_refits_on_two_workers_are_the_local_ones(cluster, identified, tmp_path):
     there = _cli(["identify", "--data", "preload-loss", "--fit", PRELOAD_FIT, "--refits",

@@ -23,6 +23,16 @@ def _workers(text: str) -> int:
     return value
 
 
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"a positive number of seconds, got '{text}'")
+    return value
+
+
 def add_args(parser, what: str = "the independent chunks") -> None:
     """--scheduler ADDRESS | --workers N (mutually exclusive); `what`: what they run."""
     group = parser.add_mutually_exclusive_group()
@@ -33,6 +43,10 @@ def add_args(parser, what: str = "the independent chunks") -> None:
     group.add_argument("--workers", type=_workers, metavar="N",
                        help="start a local Dask cluster of N worker processes (one thread "
                        f"each) and run {what} on it")
+    parser.add_argument("--chunk-timeout", type=_seconds, metavar="SECONDS",
+                        help="on a cluster: a chunk that runs longer is reported as failed "
+                        "(its points unresolved; a rerun computes them) and its worker "
+                        "restarted (default: no limit)")
 
 
 def wanted(args) -> bool:
@@ -50,13 +64,18 @@ def explicit(args) -> bool:
 def cluster_from_args(args, command: str, enabled: bool = True):
     """The `Cluster` named by --scheduler / --workers / BSFS_SCHEDULER, or None (the work
     runs in this process as before; also where not `enabled`); closed on leaving."""
+    budget = getattr(args, "chunk_timeout", None)
+    if budget is not None and not wanted(args):
+        raise ui.CLIError("--chunk-timeout limits chunks on a cluster: give --workers N or "
+                          f"--scheduler ADDRESS (or ${ENV}) too, or drop it")
     if not enabled or not wanted(args):
         yield None
         return
     from ..cluster import open_cluster
 
     try:
-        cluster = open_cluster(getattr(args, "scheduler", None), getattr(args, "workers", None))
+        cluster = open_cluster(getattr(args, "scheduler", None), getattr(args, "workers", None),
+                               chunk_timeout=budget)
     except (RuntimeError, ValueError, OSError) as exc:
         raise ui.CLIError(str(exc).splitlines()[0]) from None
     print(f"bsfs {command}: independent chunks on {cluster.describe()}", flush=True)

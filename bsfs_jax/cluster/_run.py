@@ -8,6 +8,8 @@ Faults:
 - a chunk that raises is run again (`retries`, default 1: two attempts in all), on any
   worker; if it fails again, its `ChunkFailed` carries the cause and the other chunks go
   on;
+- a chunk that runs past the cluster's `chunk_timeout` is reported at once (attempts 1:
+  it would overrun again), and its worker, whose thread cannot be stopped, is restarted;
 - a worker that dies (kill -9, a node lost) takes only its running chunks with it: the
   scheduler gives them to the other workers (it does so up to
   `distributed.scheduler.allowed-failures` times, 3 by default); a chunk it gives up on
@@ -81,15 +83,22 @@ class Cluster:
     - `retries`: extra attempts of a chunk that raises (1); `resubmits`: extra submissions
       of a chunk whose workers died more often than the scheduler allows (1).
     - `timeout`: seconds to wait for the scheduler to answer (`CONNECT_TIMEOUT_S`).
+    - `chunk_timeout`: seconds a chunk may run on its worker (None: no limit); one that
+      runs past them fails with a `TimeoutError` cause and its worker is restarted.
     - `records`: one dict per finished chunk (seconds, worker, programs compiled), in
       the order they came back; `failures`: the `ChunkFailed` of the run's chunks.
     """
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None, *,
                  cache: str | None = None, retries: int = 1, resubmits: int = 1,
-                 timeout: float = CONNECT_TIMEOUT_S, client=None):
+                 timeout: float = CONNECT_TIMEOUT_S, chunk_timeout: float | None = None,
+                 client=None):
         if client is None and not scheduler and workers is None:
             raise ValueError("Cluster needs a scheduler address or a number of workers")
+        if chunk_timeout is not None and not float(chunk_timeout) > 0:
+            raise ValueError(f"chunk_timeout must be a positive number of seconds, got "
+                             f"{chunk_timeout}")
+        self.chunk_timeout = None if chunk_timeout is None else float(chunk_timeout)
         if workers is not None and int(workers) < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         self.scheduler, self.workers = scheduler, None if workers is None else int(workers)
@@ -162,8 +171,8 @@ class Cluster:
         def submit(k: int):
             submits[k] = submits.get(k, 0) + 1
             fut = self.client.submit(run_chunk, payload, items[k], self.cache, kind,
-                                     key=f"{stamp}-{k}-{submits[k]}", pure=False,
-                                     retries=self.retries)
+                                     self.chunk_timeout, key=f"{stamp}-{k}-{submits[k]}",
+                                     pure=False, retries=self.retries)
             where[fut.key] = k
             return fut
 
@@ -186,9 +195,24 @@ class Cluster:
                 continue
             finally:
                 fut.release()
+            if record.get("timed_out"):
+                failed = ChunkFailed(k, items[k], f"TimeoutError: ran past its budget of "
+                                     f"{self.chunk_timeout:g} s on {record['worker']}", 1)
+                self.failures.append(failed)
+                self._restart(record["worker"])
+                yield k, failed
+                continue
             record.update(position=k, submits=submits[k])
             self.records.append(record)
             yield k, value
+
+    def _restart(self, worker: str) -> None:
+        """Restart `worker` (its overrunning chunk's thread goes with its process); a
+        worker without a nanny cannot be restarted and keeps the thread."""
+        try:
+            self.client.restart_workers([worker], raise_for_error=False)
+        except Exception:  # noqa: BLE001 - the chunk is reported either way
+            pass
 
     def close(self) -> None:
         if self.client is not None:

@@ -72,15 +72,17 @@ def ready(cache: str | None = None) -> str:
         return _STATE["cache"]
 
 
-def run_chunk(payload: bytes, item, cache: str | None = None, kind: str = "chunk"):
+def run_chunk(payload: bytes, item, cache: str | None = None, kind: str = "chunk",
+              budget: float | None = None):
     """(fn(item), record) on a worker, `fn` being `payload` unpickled after `ready()`.
     `kind`: the chunk's kind (its function's name); the record's `chunk_of_worker` counts
-    this worker's chunks of that kind (1 for its first)."""
+    this worker's chunks of that kind (1 for its first). `budget`: seconds the chunk may
+    run; past them the value is None and the record's `timed_out` True (`_within`)."""
     cache_dir = ready(cache)
     fn = pickle.loads(payload)
     before = dict(_COUNTS)
     t0 = time.perf_counter()
-    value = fn(item)
+    value, timed_out = (fn(item), False) if budget is None else _within(fn, item, budget)
     seconds = time.perf_counter() - t0
     _STATE["chunks"][kind] = _STATE["chunks"].get(kind, 0) + 1
     try:
@@ -89,8 +91,31 @@ def run_chunk(payload: bytes, item, cache: str | None = None, kind: str = "chunk
         worker = get_worker().address
     except (ImportError, ValueError):
         worker = f"{socket.gethostname()}:{os.getpid()}"
-    record = {"seconds": seconds, "worker": worker, "pid": os.getpid(),
+    record = {"seconds": seconds, "worker": worker, "pid": os.getpid(), "timed_out": timed_out,
               "kind": kind, "chunk_of_worker": _STATE["chunks"][kind], "cache": cache_dir,
               **{k: _COUNTS[k] - before[k] for k in _COUNTS}}
     record["compiled"] = record["programs"] - record["cache_hits"]  # by XLA, not read
     return value, record
+
+
+def _within(fn, item, budget: float):
+    """(fn(item), False), or (None, True) where it runs past `budget` seconds. The chunk
+    runs in a thread of its own that this one waits for; one that overruns cannot be
+    stopped (a compiled program runs to its end, a deadlocked one never ends), so it is
+    left behind and the client restarts this worker (`Cluster.run`)."""
+    box: dict = {}
+
+    def work():
+        try:
+            box["value"] = fn(item)
+        except BaseException as exc:  # noqa: BLE001 - raised again in the waiting thread
+            box["error"] = exc
+
+    thread = threading.Thread(target=work, name="bsfs-chunk", daemon=True)
+    thread.start()
+    thread.join(budget)
+    if thread.is_alive():
+        return None, True
+    if "error" in box:
+        raise box["error"]
+    return box["value"], False
