@@ -7,8 +7,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bsfs_jax.analysis import Atlas, SweepConfig, SweepProblem, atlas, load_atlas
-from bsfs_jax.analysis._verify import VERDICT_FIELDS, VerifySettings
+from bsfs_jax.analysis import (
+    VERDICT_FIELDS,
+    Atlas,
+    SweepConfig,
+    SweepProblem,
+    VerifySettings,
+    atlas,
+    load_atlas,
+)
 from bsfs_jax.plotting import plot_atlas_amplitude, plot_atlas_motion
 from tests.textbook import duffing
 

@@ -172,7 +172,7 @@ def _branch():
 
 
 def _atlas():
-    from bsfs_jax.analysis._atlas import Atlas
+    from bsfs_jax.analysis import Atlas
 
     x = np.linspace(800.0, 1600.0, 17)
     y = np.linspace(1000.0, 5000.0, 9)

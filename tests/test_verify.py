@@ -10,14 +10,21 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bsfs_jax.analysis import SweepConfig, SweepProblem, largest_lyapunov, sweep
+from bsfs_jax.analysis import (
+    SweepConfig,
+    SweepProblem,
+    VerifySettings,
+    largest_lyapunov,
+    minimum_transient,
+    sweep,
+    verify_sweep,
+)
 from bsfs_jax.analysis._evidence import (
     closed_curve_error,
     exponent_interval,
     locked_to,
     rotation_number,
 )
-from bsfs_jax.analysis._verify import VerifySettings, minimum_transient, verify_sweep
 from bsfs_jax.solvers import SolverSettings
 from tests.textbook import (
     LORENZ_CLASSIC,

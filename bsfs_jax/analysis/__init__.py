@@ -5,9 +5,9 @@
 - analyses: `stroboscopic`, `amplitude_spectrum`, `largest_lyapunov`, `classify_motion`.
 """
 
-from ._atlas import Atlas as Atlas
 from ._atlas import atlas as atlas
-from ._atlas import load_atlas as load_atlas
+from ._atlas_result import Atlas as Atlas
+from ._atlas_result import load_atlas as load_atlas
 from ._bsfs import bsfs_problem as bsfs_problem
 from ._bsfs import parameter_unit as parameter_unit
 from ._classify import ClassifierSettings as ClassifierSettings
@@ -29,9 +29,9 @@ from ._sweep_result import Jump as Jump
 from ._sweep_result import SweepResult as SweepResult
 from ._sweep_result import detect_jumps as detect_jumps
 from ._sweep_result import load_sweep as load_sweep
-from ._verify import VERDICT_FIELDS as VERDICT_FIELDS
-from ._verify import VerifySettings as VerifySettings
 from ._verify import minimum_transient as minimum_transient
 from ._verify import slowest_decay_rate as slowest_decay_rate
 from ._verify import verify_points as verify_points
 from ._verify import verify_sweep as verify_sweep
+from ._verify_settings import VERDICT_FIELDS as VERDICT_FIELDS
+from ._verify_settings import VerifySettings as VerifySettings

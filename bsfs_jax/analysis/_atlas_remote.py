@@ -17,7 +17,7 @@ import numpy as np
 from ._block_verdict import UNRESOLVED
 from ._remote import cause_of, failure, run_elsewhere
 from ._sweep import sweep
-from ._verify import VERDICT_FIELDS
+from ._verify_settings import VERDICT_FIELDS
 
 
 def run_row(problem, x, config, verify, folder, shard):

@@ -5,7 +5,7 @@ evidence and the reason (one home for the format that `bsfs sweep` and `bsfs map
 import numpy as np
 
 from ..solvers import result_codes, result_text
-from ._verify import VERDICT_FIELDS
+from ._verify_settings import VERDICT_FIELDS
 
 
 def _num(x):
