@@ -3,7 +3,9 @@ identify`'s bootstrap refits and `bsfs predict`'s draws give the local run's fil
 1e-12, and the robustness and coverage studies write the local run's rows; a batch that
 fails on every attempt is counted (refits) or computed in this process (predict); a
 float64 jax array reaches a fresh worker as float64 (the worker's settings come before
-any task's arguments)."""
+any task's arguments); a chunk past `chunk_timeout` is reported and its worker restarted;
+a cluster started by the `dask scheduler` / `dask worker` commands serves `bsfs sweep`
+through BSFS_SCHEDULER."""
 
 import json
 import os
@@ -215,3 +217,56 @@ def test_the_studies_on_two_workers_write_the_local_rows(cluster, tmp_path):
         assert _worst(a, b) < 1e-12
         again = _study(script, [*args, *out], tmp_path, cluster)
         assert len(_rows(there / name, key)) == 2, again
+
+
+@pytest.mark.timeout(600)
+def test_a_cluster_started_by_the_dask_commands_serves_bsfs_sweep(tmp_path):
+    """The README's route: `dask scheduler`, then `dask worker` (processes that know
+    nothing of bsfs, without the command's settings in their environment), and the
+    command pointed at it by BSFS_SCHEDULER: the local run's sweep."""
+    import time
+
+    from distributed import Client
+
+    from bsfs_jax.analysis import load_sweep
+    from tests.test_cluster import assert_same_sweep
+
+    dask = str(Path(sys.executable).parent / "dask")
+    plain = {k: v for k, v in os.environ.items()
+             if k not in ("XLA_FLAGS", "EQX_ON_ERROR", "BSFS_SCHEDULER")}
+    file = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([dask, "scheduler", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(file)], cwd=tmp_path, env=plain,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        for _ in range(600):
+            if file.exists() and file.stat().st_size:
+                break
+            time.sleep(0.1)
+        address = json.loads(file.read_text())["address"]
+        procs.append(subprocess.Popen(
+            [dask, "worker", "--scheduler-file", str(file), "--nworkers", "2", "--nthreads",
+             "1", "--no-dashboard"], cwd=tmp_path, env=plain, stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL))
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=120)
+        swept = ["sweep", "--start", "3000", "--stop", "3500", "--num", "5", "--chunk", "2",
+                 "--transient", "40", "--periods", "8", "--samples-per-period", "16"]
+        cmd = [sys.executable, "-c", "from bsfs_jax.cli import run; run()", *swept]
+        for out, extra in (("s0", {}), ("s1", {"BSFS_SCHEDULER": address})):
+            proc = subprocess.run([*cmd, "--out", str(tmp_path / out)], cwd=tmp_path,
+                                  env={**plain, **extra}, capture_output=True, text=True,
+                                  timeout=400)
+            assert proc.returncode == 0, proc.stdout[-1500:] + proc.stderr[-1500:]
+        said = json.loads((tmp_path / "s1" / "summary.json").read_text())["cluster"]
+        assert said["chunks_done"] == 3 + 1 and not said["failed_chunks"]
+        assert_same_sweep(load_sweep(tmp_path / "s0" / "sweep.nc"),
+                          load_sweep(tmp_path / "s1" / "sweep.nc"))
+    finally:
+        for p in procs[::-1]:
+            p.terminate()
+        for p in procs[::-1]:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
