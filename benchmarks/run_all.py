@@ -22,10 +22,10 @@ HERE = Path(__file__).parent
 FILES_MODULE = Path(__file__).resolve().parent.parent / "bsfs_jax" / "_files.py"
 ORDER = ["bench_cold.py", "bench_simulate.py", "bench_sweep.py", "bench_orbits.py",
          "bench_identify.py", "bench_resonance.py", "bench_fit_solver.py", "bench_design.py",
-         "bench_long.py", "bench_cluster.py"]
+         "bench_long.py", "bench_cluster.py", "bench_cluster_jobs.py"]
 RESULT_ORDER = ["cold.md", "xla_level.md", "simulate.md", "b1_sweep.md", "gpu_b1.md",
                 "orbits.md", "identify.md", "resonance.md", "fit_solver.md", "design.md",
-                "long_records.md", "cluster.md"]
+                "long_records.md", "cluster.md", "cluster_jobs.md"]
 
 
 def slug(heading: str) -> str:

@@ -11,7 +11,8 @@ run on the truth (worn.toml) itself, the preloads read from it.
 
     python scripts/forecast_coverage.py                 # 100 replicates (~1 h, 2 cores)
     python scripts/forecast_coverage.py --quick         # 4 replicates, a check
-    python scripts/forecast_coverage.py --workers 2     # two worker processes at a time
+    python scripts/forecast_coverage.py --workers 2     # a local Dask cluster of two
+    python scripts/forecast_coverage.py --scheduler tcp://login1:8786  # a running one
     python scripts/forecast_coverage.py --report-only   # tables from the files
     python scripts/forecast_coverage.py --part liftoff  # the lift-off alone (~15 s each)
     python scripts/forecast_coverage.py --part modal    # modal quantities, preloads (~5 s)
@@ -28,18 +29,21 @@ the same band); its rows (<force>N.liftoff.jsonl) replace the whole forecast's l
 quantities in the summary, so a change to the lift-off is checked without continuing
 every FRC again.
 
-Every replicate is one JSON line in out/forecast-coverage/<force>N.jsonl (per worker
-.w<i>.jsonl; flushed and fsynced); a rerun skips the replicates already there, so an
-interrupted study resumes. The summary (per quantity: coverage with its Clopper-Pearson
-interval, mean and std of z = (estimate - truth) / stated std, mean relative error, the
-methods used) is printed and written to out/forecast-coverage/<force>N_summary.{json,md}.
-Results: docs/COVERAGE.md.
+Every replicate is one JSON line in out/forecast-coverage/<force>N.jsonl (or .w0.jsonl,
+written by the study's own processes of at most 10 replicates each; flushed and fsynced); a
+rerun skips the replicates already there, so an interrupted study resumes. With
+`--workers N` or `--scheduler ADDRESS` each replicate is a chunk on a Dask cluster, run in a
+fresh process of its worker, and this process writes its row. The summary (per quantity:
+coverage with its Clopper-Pearson interval, mean and std of z = (estimate - truth) / stated
+std, mean relative error, the methods used) is printed and written to
+out/forecast-coverage/<force>N_summary.{json,md}. Results: docs/COVERAGE.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import subprocess
@@ -58,6 +62,7 @@ from bsfs_jax.files import jsonable, write_text_atomic  # noqa: E402
 setup_jax()  # 64-bit, the persistent compilation cache, one BLAS thread
 
 import numpy as np  # noqa: E402
+import study_cluster  # noqa: E402
 from coverage_study import (  # noqa: E402
     append_line,
     binom_ci,
@@ -250,34 +255,56 @@ def _over() -> dict:
     return {"effects": json.loads(text)} if text else {}
 
 
-def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
+def one_replicate(k: int, force: float, part: str, tv: dict | None) -> tuple[dict, dict]:
+    """(row, truth values) of replicate k: its records synthesised, identified into a
+    temporary folder as `bsfs identify` writes it, and forecast from that folder. `tv`:
+    the truth's values (`truth_values`), or None: computed here from this replicate's
+    identification (the study's first replicate)."""
     truth, prior = truth_params(), bsfs_jax.preset()
+    t0 = time.perf_counter()
+    recs = synth_records(truth, k, _over())
+    t1 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix=f"bsfs-fc{k}-") as tmp:
+        res = identified_folder(recs, prior, Path(tmp))
+        t2 = time.perf_counter()
+        ident = idn.load_identified(tmp)
+        if tv is None:  # as read back from the truth file
+            tv = json.loads(json.dumps(jsonable(truth_values(ident, truth, force))))
+        t_truth = time.perf_counter()
+        fc = (idn.forecast(ident, force, nominal_curve=False) if part == "all"
+              else idn.forecast_liftoff(ident) if part == "liftoff"
+              else idn.forecast_modal(ident))
+    t3 = time.perf_counter()
+    return row_of(k, fc, tv, dict(synth=t1 - t0, identify=t2 - t1,
+                                  forecast=t3 - t_truth), res), tv
+
+
+def replicate_row(force: float, part: str, tv: dict, k: int) -> dict:
+    """`one_replicate`'s row, the replicate last: a unit of work on a cluster."""
+    return one_replicate(k, force, part, tv)[0]
+
+
+def _progress(j: int, n: int, row: dict, t_start: float) -> None:
+    el = time.perf_counter() - t_start
+    cov = [q["covers"] for q in row["quantities"].values() if q["covers"] is not None]
+    s = row["seconds"]
+    print(f"[{j}/{n}] replicate {row['replicate']}: covered {sum(cov)}/{len(cov)}  identify "
+          f"{s['identify']:.1f} s forecast {s['forecast']:.1f} s  (elapsed {el:.0f} s, ETA "
+          f"{el / j * (n - j):.0f} s)", flush=True)
+
+
+def run(todo: list[int], path: Path, force: float, part: str = "all") -> None:
+    """The replicates `todo` one after another in this process, their rows appended to
+    `path`; the truth's values from the truth file, or written there by the first."""
     truth_file = OUT / f"{force:g}N_truth.json"
     t_start = time.perf_counter()
     for j, k in enumerate(todo):
-        t0 = time.perf_counter()
-        recs = synth_records(truth, k, _over())
-        t1 = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix=f"bsfs-fc{k}-") as tmp:
-            res = identified_folder(recs, prior, Path(tmp))
-            t2 = time.perf_counter()
-            ident = idn.load_identified(tmp)
-            if not truth_file.exists():  # once per study (the first worker to get here)
-                write_json(truth_file, truth_values(ident, truth, force))
-            t_truth = time.perf_counter()
-            fc = (idn.forecast(ident, force, nominal_curve=False) if part == "all"
-                  else idn.forecast_liftoff(ident) if part == "liftoff"
-                  else idn.forecast_modal(ident))
-        t3 = time.perf_counter()
-        tv = json.loads(truth_file.read_text())
-        row = row_of(k, fc, tv, dict(synth=t1 - t0, identify=t2 - t1,
-                                     forecast=t3 - t_truth), res)
+        tv = json.loads(truth_file.read_text()) if truth_file.exists() else None
+        row, tv = one_replicate(k, force, part, tv)
+        if not truth_file.exists():  # once per study (the first worker to get here)
+            write_json(truth_file, tv)
         append_line(path, row)
-        el = time.perf_counter() - t_start
-        cov = [q["covers"] for q in row["quantities"].values() if q["covers"] is not None]
-        print(f"[{j + 1}/{len(todo)}] replicate {k}: covered {sum(cov)}/{len(cov)}  "
-              f"identify {t2 - t1:.1f} s forecast {t3 - t_truth:.1f} s  (elapsed {el:.0f} s, "
-              f"ETA {el / (j + 1) * (len(todo) - j - 1):.0f} s)", flush=True)
+        _progress(j + 1, len(todo), row, t_start)
 
 
 def write_json(path, data) -> None:
@@ -298,8 +325,6 @@ def main(argv=None) -> int:
                     help="first replicate (seeds first..replicates-1; default 0)")
     ap.add_argument("--quick", action="store_true", help="4 replicates (a check)")
     ap.add_argument("--force", type=float, default=100.0, help="working force [N]")
-    ap.add_argument("--workers", type=int, default=1,
-                    help="worker processes at a time (each runs at most 10 replicates)")
     ap.add_argument("--shard", default=None, help=argparse.SUPPRESS)  # "i/n" (a worker)
     ap.add_argument("--report-only", action="store_true", help="summarise the files")
     ap.add_argument("--out", type=Path, default=OUT,
@@ -308,6 +333,7 @@ def main(argv=None) -> int:
                     help="the whole forecast, or the lift-off alone, or the modal quantities "
                          "and preloads alone (their rows then replace the whole forecast's "
                          "quantities of the same names in the summary)")
+    study_cluster.add_args(ap)
     args = ap.parse_args(argv)
     _use_out(args.out)
     n = 4 if args.quick else args.replicates
@@ -323,24 +349,40 @@ def main(argv=None) -> int:
     print(f"{len(done)} replicate(s) done, {len(todo)} to run at {args.force:g} N "
           f"(part: {part})", flush=True)
     if todo and not args.report_only:
+        cluster = study_cluster.open_from(args)  # (an unreachable one: before any work)
         if not (OUT / f"{args.force:g}N_truth.json").exists():
             # The truth's values first (the whole forecast at the truth, in `run`), so the
             # workers do not both compute them.
             run(todo[:1], row_path(args.force, part), args.force, part)
-        # Workers of at most PER_PROCESS replicates each, then fresh processes: every
-        # continuation leaves compiled programs behind, and a process that ran 13
-        # forecasts beside another ran out of the machine's 24 GB.
-        while True:
+        if cluster is not None:
+            # A replicate a chunk, each in a fresh process of its worker (the memory of
+            # its continuations goes with it), with the truth's values computed above.
+            tv = json.loads((OUT / f"{args.force:g}N_truth.json").read_text())
+            done = {r["replicate"] for f in files(args.force, part) for r in read_done(f)}
+            rest = [k for k in todo if k not in done]
+            path, t_start, count = row_path(args.force, part), time.perf_counter(), [0]
+
+            def keep(_, row):
+                append_line(path, row)
+                count[0] += 1
+                _progress(count[0], len(rest), row, t_start)
+
+            with cluster:
+                study_cluster.run_units(functools.partial(replicate_row, args.force, part, tv),
+                                        rest, keep, cluster, modules=("coverage_study",),
+                                        fresh_process=True)
+        # Without a cluster: processes of at most PER_PROCESS replicates, one after another
+        # (every continuation leaves compiled programs behind, and a process that ran 13
+        # forecasts beside another ran out of the machine's 24 GB).
+        while cluster is None:
             done = {r["replicate"] for f in files(args.force, part) for r in read_done(f)}
             if all(k in done for k in range(args.first, n)):
                 break
-            procs = [subprocess.Popen([sys.executable, __file__, "--replicates", str(n),
-                                       "--first", str(args.first),
-                                       "--force", str(args.force), "--part", part,
-                                       "--out", str(OUT), "--shard",
-                                       f"{i}/{args.workers}"]) for i in range(args.workers)]
-            if any(p.wait() for p in procs):
-                print("a worker failed; rerun to resume", file=sys.stderr)
+            proc = subprocess.run([sys.executable, __file__, "--replicates", str(n), "--first",
+                                   str(args.first), "--force", str(args.force), "--part",
+                                   part, "--out", str(OUT), "--shard", "0/1"])
+            if proc.returncode:
+                print("the study's process failed; rerun to resume", file=sys.stderr)
                 return 1
 
     def read(which):

@@ -51,11 +51,13 @@ def open_from(args):
     return cluster
 
 
-def run_units(fn, units: list, on_result, cluster=None, modules=()) -> list:
+def run_units(fn, units: list, on_result, cluster=None, modules=(),
+              fresh_process: bool = False) -> list:
     """`on_result(unit, fn(unit))` for every unit, in this process (in order) or with
     `cluster` on its workers (as they finish); `modules`: the scripts' modules whose
-    functions `fn` uses, sent by value. Returns the units that failed on every attempt,
-    as (unit, cause)."""
+    functions `fn` uses, sent by value; `fresh_process`: each unit in a new process of its
+    worker (`Cluster.run`'s). Returns the units that failed on every attempt, as (unit,
+    cause)."""
     if cluster is None:
         for unit in units:
             on_result(unit, fn(unit))
@@ -66,7 +68,7 @@ def run_units(fn, units: list, on_result, cluster=None, modules=()) -> list:
         if module != "__main__":
             cloudpickle.register_pickle_by_value(sys.modules[module])
     failed = []
-    for k, value in cluster.run(fn, units, name="bsfs-study"):
+    for k, value in cluster.run(fn, units, name="bsfs-study", fresh_process=fresh_process):
         if isinstance(value, Exception):
             print(f"unit {units[k]!r} failed {value.attempts} times on the cluster "
                   f"({value.cause}); left out, a rerun computes it", flush=True)

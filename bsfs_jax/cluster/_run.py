@@ -152,16 +152,25 @@ class Cluster:
         where = self.scheduler or f"a local cluster of {self.workers} worker processes"
         return f"{where} ({self.n_workers} workers)"
 
-    def run(self, fn, items, *, name: str = "bsfs-chunk"):
+    def run(self, fn, items, *, name: str = "bsfs-chunk", fresh_process: bool = False):
         """Yield `(position, fn(item))` for every item as the chunks finish; a chunk that
         failed on every attempt yields its `ChunkFailed` (also kept in `failures`). Runs
-        from several threads of the client at once may share the cluster."""
+        from several threads of the client at once may share the cluster.
+        `fresh_process`: each chunk in a new process of its worker (`_fresh`), for jobs
+        whose memory grows from chunk to chunk; its programs then come from the shared
+        compilation cache."""
         distributed = _dask()
         from ._worker import run_chunk
 
         items = list(items)
         if not items:
             return
+        if fresh_process:
+            import functools
+
+            from ._fresh import in_fresh_process
+
+            fn = functools.partial(in_fresh_process, _dumps(fn), cache=self.cache)
         items = [_as_numpy(x) for x in items]  # (jax arrays: `_plugin`'s docstring)
         payload = _dumps(fn)
         kind = getattr(getattr(fn, "func", fn), "__qualname__", "chunk")
