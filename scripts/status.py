@@ -326,6 +326,10 @@ def _cluster(src: Sources, v: Values):
     put("task_ms", lambda: sig(1e3 * d["scheduler"]["per_task_s"], 2))
     put("est8", lambda: minutes(d["estimate"]["8_workers_s"]))
     put("est64", lambda: minutes(d["estimate"]["64_workers_s"]))
+    j = "benchmarks/results/cluster_jobs.json"
+    e = src.json(j)
+    v.put("cl.study8", lambda: minutes(e["study"]["estimate"]["8_workers_s"]), j)
+    v.put("cl.drives", lambda: str(e["study"]["estimate"]["drives"]), j)
 
 
 def _orbits(src: Sources, v: Values, targets: dict):
