@@ -172,7 +172,7 @@ class FailingSecond:
 
 
 def test_a_batch_of_draws_that_fails_on_the_cluster_runs_here():
-    from identification.forecasting._intervals import run_batches
+    from identification.forecasting._batches import run_batches
 
     stand_in = FailingSecond()
     out = run_batches(np.square, [(np.arange(3.0),), (np.arange(4.0),)], stand_in)

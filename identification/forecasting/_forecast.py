@@ -13,9 +13,10 @@ import bsfs_jax
 from bsfs_jax.design.building import OPENS_FRACTION
 
 from ..measurement import require_x64
+from ._batches import on_threads
 from ._frc_checks import from_draws, from_probes, probe_steps
 from ._frc_draws import frc_points
-from ._intervals import ForecastError, Identified, Quantity, locate_peak, on_threads
+from ._intervals import ForecastError, Identified, Quantity, locate_peak
 from ._liftoff import linear_liftoff, nonlinear_liftoff
 from ._modal import _modal
 from ._result import Forecast

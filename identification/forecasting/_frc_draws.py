@@ -33,7 +33,8 @@ import numpy as np
 
 import bsfs_jax
 
-from ._intervals import Identified, draw_batches, lane_parts, run_batches
+from ._batches import draw_batches, lane_parts, run_batches
+from ._intervals import Identified
 
 BATCH_ROUND = 8  # the last batch of draws padded to a multiple of this (`draw_batches`)
 #: The peak frequency's central differences step +-CENTRAL_SD standard deviations of each

@@ -19,8 +19,8 @@ import numpy as np
 import bsfs_jax
 from bsfs_jax.machine import JOINTS
 
+from ._batches import draw_batches, lane_parts, run_batches
 from ._frc_draws import BATCH_ROUND
-from ._intervals import draw_batches, lane_parts, run_batches
 
 FIRST_STEP = 1e-3  # the secant's second force: the first times (1 + FIRST_STEP)
 # The lift-off secant (here and at the estimate, `_liftoff.search_on_orbits`): at most

@@ -10,7 +10,8 @@ import numpy as np
 
 import bsfs_jax
 
-from ._intervals import Identified, draw_batches, from_hessian, value_jac_hess
+from ._batches import draw_batches
+from ._intervals import Identified, from_hessian, value_jac_hess
 
 
 def _modal_values(coords, theta):
