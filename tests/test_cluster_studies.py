@@ -82,9 +82,16 @@ def _worst(a, b, path="") -> float:
 @pytest.mark.timeout(120)
 def test_a_float64_jax_array_reaches_a_fresh_worker_as_float64(tmp_path):
     import jax.numpy as jnp
+    from distributed import Client, LocalCluster
 
     with Cluster(workers=1, cache=str(tmp_path / "cache")) as fresh:
         ((_, got),) = list(fresh.run(dtype_and_error, [Box(jnp.asarray([0.1]))]))
+    assert got == ("float64", 0.0, True)
+    # a Dask client of the caller's own
+    with (LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as local,
+          Client(local) as client):
+        ((_, got),) = list(Cluster(client=client, cache=str(tmp_path / "cache"))
+                           .run(dtype_and_error, [Box(jnp.asarray([0.1]))]))
     assert got == ("float64", 0.0, True)
 
 

@@ -519,7 +519,7 @@ def test_costly_lanes_are_cut_into_one_equal_batch_per_thread(monkeypatch):
     call's result in the calls' order, on threads or not."""
     import types
 
-    from identification.forecasting import _intervals as fc
+    from identification.forecasting import _batches as fc
 
     theta = np.full(3, -1.0)
     for n, parts, size, count in ((200, 2, 104, 2), (216, 2, 112, 2), (200, 1, 200, 1),

@@ -111,6 +111,8 @@ class Cluster:
         self.client = client
         if client is None:
             self._start()
+        else:
+            self._register()  # a client of the caller's: its workers choose their settings
 
     def _start(self) -> None:
         distributed = _dask()
