@@ -126,6 +126,9 @@ def estimate(grids: dict, sched: dict, n: int = 256) -> dict:
 
 
 def _fmt(s: float) -> str:
+    """Seconds as s, min (from 2 min) or h (from 1.5 h)."""
+    if s >= 5400:
+        return f"{s / 3600:.1f} h"
     return f"{s / 60:.1f} min" if s >= 120 else f"{s:.1f} s"
 
 

@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from _cli import env, run_cli, write_result  # noqa: E402
 from _machine import machine_info, machine_line  # noqa: E402
+from bench_cluster import _fmt  # noqa: E402
 
 FIT = "nut_preload,bearing_preload,c_b,c_s,c_n"
 IDENTIFY = ["identify", "--data", "preload-loss", "--fit", FIT, "--refits", "200"]
@@ -134,12 +135,6 @@ def study(tmp: Path, cache: Path) -> dict:
                        **{f"{w}_workers_s": math.ceil(STUDY_DRIVES / w) * drive
                           for w in (1, 8, 64)}}
     return out
-
-
-def _fmt(s: float) -> str:
-    if s >= 5400:
-        return f"{s / 3600:.1f} h"
-    return f"{s / 60:.1f} min" if s >= 120 else f"{s:.1f} s"
 
 
 def markdown(result: dict, command: str) -> str:

@@ -18,16 +18,11 @@ import sys
 
 
 def add_args(parser) -> None:
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run the units of work on the Dask cluster whose scheduler is at "
-                       "ADDRESS (default $BSFS_SCHEDULER); this process writes the rows")
-    group.add_argument("--workers", type=int, metavar="N",
-                       help="start a local Dask cluster of N worker processes and run the "
-                       "units of work on it")
-    parser.add_argument("--chunk-timeout", type=float, metavar="SECONDS",
-                        help="on a cluster: a unit that runs longer is left out (a rerun "
-                        "computes it) and its worker restarted")
+    """--scheduler ADDRESS | --workers N, and --chunk-timeout SECONDS: the `bsfs`
+    command's options (`bsfs_jax.cli._cluster_opts`), with their checks."""
+    from bsfs_jax.cli import _cluster_opts
+
+    _cluster_opts.add_args(parser, "the units of work")
 
 
 def open_from(args):
@@ -35,10 +30,6 @@ def open_from(args):
     line where it cannot be opened."""
     from bsfs_jax.cluster import open_cluster
 
-    if args.workers is not None and args.workers < 1:
-        raise SystemExit(f"--workers must be at least 1, got {args.workers}")
-    if args.chunk_timeout is not None and not args.chunk_timeout > 0:
-        raise SystemExit(f"--chunk-timeout must be positive, got {args.chunk_timeout}")
     try:
         cluster = open_cluster(args.scheduler, args.workers, chunk_timeout=args.chunk_timeout)
     except (RuntimeError, ValueError, OSError) as exc:

@@ -24,11 +24,8 @@ def _workers(text: str) -> int:
 
 
 def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds") from None
-    if not 0 < value < float("inf"):
+    value = ui.finite_float(text)
+    if not value > 0:
         raise argparse.ArgumentTypeError(f"a positive number of seconds, got '{text}'")
     return value
 
@@ -90,11 +87,9 @@ def report(cluster, command: str, failed: list) -> dict | None:
     their seconds, the programs they compiled, and `failed` (the result's failed chunks or
     rows, `metadata["failed_chunks"]` / `["failed_rows"]`), each also printed as a
     warning with its cause."""
-    if cluster is None:
+    out = account(cluster)
+    if out is None:
         return None
-    from ..cluster import summary
-
-    out = summary(cluster)
     out["failed_chunks"] = failed
     for f in failed:
         lo, hi = f["values"]

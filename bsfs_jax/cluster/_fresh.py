@@ -22,8 +22,8 @@ def in_fresh_process(payload: bytes, item, cache: str | None = None):
     """`fn(item)` in a new process (`payload` = cloudpickle.dumps(fn)); its error, if it
     raises, as a RuntimeError with the child's last line."""
     proc = subprocess.run([sys.executable, "-c", _CHILD],
-                          input=pickle.dumps((payload, item, cache)), capture_output=True,
-                          env=dict(os.environ))
+                          input=pickle.dumps((payload, pickle.dumps(item), cache)),
+                          capture_output=True, env=dict(os.environ))
     if proc.returncode != 0:
         lines = proc.stderr.decode(errors="replace").strip().splitlines()
         raise RuntimeError(f"the chunk's process exited {proc.returncode}: "
@@ -32,14 +32,16 @@ def in_fresh_process(payload: bytes, item, cache: str | None = None):
 
 
 def child_main() -> None:
-    """The fresh process: read (payload, item, cache) from stdin, choose the worker's
-    settings, write pickle(fn(item)) to stdout (the function's own prints go to stderr)."""
+    """The fresh process: read (payload, pickled item, cache) from stdin, choose the
+    worker's settings, then unpickle the item (a jax array in it keeps its float64:
+    `_plugin`'s docstring) and write pickle(fn(item)) to stdout (the function's own prints
+    go to stderr)."""
     payload, item, cache = pickle.loads(sys.stdin.buffer.read())
     out = sys.stdout.buffer
     sys.stdout = sys.stderr  # prints of the chunk must not mix with its result
     from ._worker import ready
 
     ready(cache)
-    fn = pickle.loads(payload)
+    fn, item = pickle.loads(payload), pickle.loads(item)
     out.write(pickle.dumps(fn(item)))
     out.flush()

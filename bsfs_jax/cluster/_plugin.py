@@ -5,8 +5,8 @@ argument to a worker whose process has not yet chosen 64-bit floats arrives as f
 (jax turns the float64 buffer into its default precision when it rebuilds the array), and
 the chunk computes a near miss: on a `bsfs predict` it moved the lift-off force's draws
 by 7e-7 relative. So `Cluster` registers this plugin, which runs `ready()` on every worker
-as it joins (those that start later or restart after a crash too), and `Cluster.run` sends
-numpy arrays anyway. Imported only where a cluster is opened (it needs distributed).
+as it joins (those that start later or restart after a crash too). Imported only where a
+cluster is opened (it needs distributed).
 """
 
 from __future__ import annotations

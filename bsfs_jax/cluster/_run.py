@@ -36,20 +36,6 @@ def _dask():
     return distributed
 
 
-def _as_numpy(tree):
-    """`tree` with its jax arrays as numpy arrays (the same values and dtypes): a chunk's
-    arguments travel as numpy, whatever the worker's precision setting."""
-    import sys
-
-    jax = sys.modules.get("jax")
-    if jax is None:
-        return tree
-    import numpy as np
-
-    return jax.tree_util.tree_map(
-        lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, tree)
-
-
 class ChunkFailed(RuntimeError):
     """A chunk that failed on every attempt: `position`, `item`, `cause` (one line),
     `attempts`."""
@@ -173,7 +159,6 @@ class Cluster:
             from ._fresh import in_fresh_process
 
             fn = functools.partial(in_fresh_process, _dumps(fn), cache=self.cache)
-        items = [_as_numpy(x) for x in items]  # (jax arrays: `_plugin`'s docstring)
         payload = _dumps(fn)
         kind = getattr(getattr(fn, "func", fn), "__qualname__", "chunk")
         stamp = f"{name}-{time.time_ns():x}-{next(self._runs)}"  # (runs from two threads)
